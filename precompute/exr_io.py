@@ -1,0 +1,88 @@
+"""Float EXR read/write for precomputed tables.
+
+Writes are atomic: the file is written under a temporary name in the target
+folder and renamed into place, so a crash never leaves a half-written table.
+Values round-trip bit-exactly for float32 (EXR ``FLOAT`` channels, lossless ZIP).
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+
+import numpy as np
+
+__all__ = ["write_exr", "read_exr", "ExrError"]
+
+_META_KEY = "scratch_meta"
+
+
+class ExrError(ValueError):
+    """The file is missing, unreadable or not a table written by ``write_exr``."""
+
+
+def _openexr():
+    try:
+        import OpenEXR  # noqa: PLC0415 - optional heavy import, only when needed
+    except ImportError as exc:  # pragma: no cover - requirements.txt installs it
+        raise ImportError("precompute.exr_io needs the 'OpenEXR' package (pip install OpenEXR)") from exc
+    return OpenEXR
+
+
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: dict | None = None) -> None:
+    """Write 2D float32 arrays of equal shape as named EXR channels, atomically.
+
+    ``meta`` (JSON-serialisable) is stored in the header and returned by ``read_exr``.
+    """
+    OpenEXR = _openexr()
+    if not channels:
+        raise ValueError("channels: need at least one named 2D array")
+    arrays = {}
+    shape = None
+    for name, a in channels.items():
+        a = np.ascontiguousarray(np.asarray(a, dtype=np.float32))
+        if a.ndim != 2 or a.size == 0:
+            raise ValueError(f"channels[{name!r}]: expected a non-empty 2D array, got shape {a.shape}")
+        if shape is not None and a.shape != shape:
+            raise ValueError(f"channels[{name!r}]: shape {a.shape} differs from {shape}")
+        shape = a.shape
+        arrays[str(name)] = a
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if meta is not None:
+        header[_META_KEY] = json.dumps(meta, sort_keys=True)
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".exr", dir=folder)
+    os.close(fd)
+    try:
+        OpenEXR.File(header, arrays).write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict | None]:
+    """Read every channel of an EXR as float32 arrays; returns ``(channels, meta)``.
+
+    Raises ``ExrError`` for missing, truncated or non-EXR files.
+    """
+    OpenEXR = _openexr()
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ExrError(f"{path}: no such file")
+    try:
+        f = OpenEXR.File(path, separate_channels=True)
+        chans = {name: np.array(c.pixels, dtype=np.float32) for name, c in f.channels().items()}
+        raw = f.header().get(_META_KEY)
+    except Exception as exc:  # OpenEXR raises plain Exceptions for corrupt files
+        raise ExrError(f"{path}: unreadable EXR ({exc})") from exc
+    meta = None
+    if raw is not None:
+        try:
+            meta = json.loads(raw if isinstance(raw, str) else raw.decode())
+        except (ValueError, AttributeError) as exc:
+            raise ExrError(f"{path}: corrupt metadata ({exc})") from exc
+    return chans, meta

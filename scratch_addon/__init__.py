@@ -1,0 +1,23 @@
+"""Scratched & microgeometry materials for Cycles (Blender add-on glue).
+
+Registration is the same for the installed extension and for TD scripts that put the
+repository root on ``sys.path`` and call ``scratch_addon.register()`` with bpy as a module.
+"""
+from __future__ import annotations
+
+import bpy
+
+from . import api, materials, operators, osl_compile, panels, preferences, presets, render  # noqa: F401
+
+_classes = (*preferences.classes, *operators.classes, *panels.classes)
+
+
+def register() -> None:
+    for cls in _classes:
+        bpy.utils.register_class(cls)
+    preferences.apply_cache_dir()
+
+
+def unregister() -> None:
+    for cls in reversed(_classes):
+        bpy.utils.unregister_class(cls)

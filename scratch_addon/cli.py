@@ -1,0 +1,74 @@
+"""Scripted renders.  The same file works both ways:
+
+    blender -b -P scratch_addon/cli.py -- --preset demo --out x.png --samples 32 --res 320 240
+    .venv/bin/python scratch_addon/cli.py --preset demo --out x.png --samples 32 --res 320 240
+
+Bad arguments or an unknown preset print a one-line error and exit with status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def _script_args(argv: list[str]) -> list[str]:
+    """Arguments meant for this script: after ``--`` under Blender, else all of ``argv[1:]``."""
+    if "--" in argv:
+        return argv[argv.index("--") + 1:]
+    return argv[1:]
+
+
+def _import_api():
+    if __package__:
+        from . import api  # imported as scratch_addon.cli / bl_ext...scratch_addon.cli
+        return api
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    import scratch_addon.api as api
+    return api
+
+
+def _parser(preset_names: list[str]) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="scratch_addon/cli.py", description="Render a scratch-material preset with Cycles (CPU).")
+    p.add_argument("--preset", default="demo", choices=preset_names, metavar="NAME",
+                   help="material preset: " + ", ".join(preset_names))
+    p.add_argument("--out", default="renders/demo.png", help="output image (.png or .exr)")
+    p.add_argument("--samples", type=int, default=32, help="samples per pixel (1..65536)")
+    p.add_argument("--res", type=int, nargs=2, default=(480, 320), metavar=("W", "H"), help="resolution in pixels")
+    p.add_argument("--seed", type=int, default=0, help="Cycles sampling seed")
+    p.add_argument("--osl", action="store_true", help="use the OSL shading backend")
+    p.add_argument("--list-presets", action="store_true", help="print preset names and exit")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    api = _import_api()
+    parser = _parser(api.preset_names())
+    args = parser.parse_args(_script_args(argv))  # exits 2 with a message on bad arguments
+    if args.list_presets:
+        print("\n".join(api.preset_names()))
+        return 0
+    if not 1 <= args.samples <= 65536:
+        parser.error(f"--samples must be in [1, 65536], got {args.samples}")
+    if not all(4 <= r <= 16384 for r in args.res):
+        parser.error(f"--res W H must each be in [4, 16384], got {args.res[0]} {args.res[1]}")
+    if os.path.splitext(args.out)[1].lower() not in (".png", ".exr"):
+        parser.error(f"--out must end in .png or .exr, got {args.out!r}")
+    try:
+        api.demo_scene(args.preset)
+        seconds = api.render(args.out, samples=args.samples, res=tuple(args.res), seed=args.seed, osl=args.osl)
+    except ValueError as exc:
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        return 2
+    w, h = args.res
+    print(f"rendered {args.out} ({w}x{h}, {args.samples} spp, preset {args.preset}) in {seconds:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    code = main()
+    if code:
+        sys.exit(code)

@@ -1,0 +1,65 @@
+"""Material builders: thin wrappers that put node groups into a material's node tree."""
+from __future__ import annotations
+
+import bpy
+
+from . import _deps
+
+
+def check_range(name: str, value: float, lo: float, hi: float) -> float:
+    """Return ``float(value)`` or raise ValueError naming the parameter and its allowed range."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {value!r}") from None
+    if not (lo <= v <= hi):  # also rejects NaN
+        raise ValueError(f"{name} must be in [{lo}, {hi}], got {value!r}")
+    return v
+
+
+def check_color(name: str, value) -> tuple[float, float, float, float]:
+    """RGB or RGBA with components in [0, 1] -> RGBA tuple."""
+    try:
+        c = [float(x) for x in value]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 or 4 numbers in [0, 1], got {value!r}") from None
+    if len(c) not in (3, 4) or not all(0.0 <= x <= 1.0 for x in c):
+        raise ValueError(f"{name} must be 3 or 4 numbers in [0, 1], got {value!r}")
+    return tuple(c[:3]) + (c[3] if len(c) == 4 else 1.0,)
+
+
+def new_material(name: str) -> bpy.types.Material:
+    """A material with an empty node tree plus a Material Output node."""
+    mat = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):  # 5.0 always has a node tree (use_nodes is deprecated)
+        mat.use_nodes = True
+    mat.node_tree.nodes.clear()
+    out = mat.node_tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (300, 0)
+    return mat
+
+
+def make_brushed_material(
+    name: str = "Brushed Baseline",
+    color=(0.91, 0.92, 0.92),
+    roughness: float = 0.3,
+    anisotropy: float = 0.8,
+    rotation: float = 0.0,
+) -> bpy.types.Material:
+    """Anisotropic GGX brushed metal (SVM), the baseline the scratch materials are compared with."""
+    rgba = check_color("color", color)
+    roughness = check_range("roughness", roughness, 0.0, 1.0)
+    anisotropy = check_range("anisotropy", anisotropy, -1.0, 1.0)
+    rotation = check_range("rotation", rotation, 0.0, 1.0)
+    group = _deps.sibling("node_groups.brushed").ensure()
+    mat = new_material(name)
+    tree = mat.node_tree
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = group
+    node.inputs["Color"].default_value = rgba
+    node.inputs["Roughness"].default_value = roughness
+    node.inputs["Anisotropy"].default_value = anisotropy
+    node.inputs["Rotation"].default_value = rotation
+    tree.links.new(node.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
+    mat["scratch_addon_kind"] = "brushed"
+    return mat

@@ -1,0 +1,66 @@
+"""Compile OSL script nodes headless (no node editor needed).
+
+Blender's ``bpy.ops.node.shader_script_update`` needs a node-editor context, so we
+call Cycles' own ``cycles.osl.update_script_node`` instead.  That function imports
+``oslquery``, which the PyPI bpy wheel ships in ``bpy/<ver>/python/lib/python3.11/
+site-packages`` without putting it on ``sys.path``: ``ensure_oslquery()`` adds it.
+"""
+from __future__ import annotations
+
+import glob
+import os
+import sys
+
+import bpy
+
+
+class OSLCompileError(RuntimeError):
+    """The OSL source failed to compile; the message carries the compiler output."""
+
+
+def ensure_oslquery() -> None:
+    """Make ``import oslquery`` work (no-op when it already does)."""
+    try:
+        import oslquery  # noqa: F401
+        return
+    except ImportError:
+        pass
+    candidates = []
+    for base in {os.path.dirname(os.path.abspath(bpy.__file__)), os.path.dirname(bpy.app.binary_path or "")}:
+        for up in (base, os.path.dirname(base), os.path.dirname(os.path.dirname(base)),
+                   os.path.dirname(os.path.dirname(os.path.dirname(base)))):
+            candidates += glob.glob(os.path.join(up, "*", "python", "lib", "python3*", "site-packages"))
+            candidates += glob.glob(os.path.join(up, "python", "lib", "python3*", "site-packages"))
+    for folder in candidates:
+        if os.path.isdir(os.path.join(folder, "oslquery")) and folder not in sys.path:
+            sys.path.append(folder)
+            return
+    raise OSLCompileError("cannot find the 'oslquery' module shipped with Blender; OSL script nodes cannot be compiled")
+
+
+def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
+    """Compile ``node`` (INTERNAL or EXTERNAL) and update its sockets; raise OSLCompileError on failure."""
+    ensure_oslquery()
+    import cycles.osl  # Cycles' own add-on module, always present in bpy
+
+    errors: list[str] = []
+
+    def report(kind, message):
+        if "ERROR" in kind:
+            errors.append(message)
+
+    ok = cycles.osl.update_script_node(node, report)
+    if errors or ok is False:
+        raise OSLCompileError(f"OSL compile of node {node.name!r} failed:\n" + "\n".join(errors))
+
+
+def script_node_from_source(tree: bpy.types.NodeTree, name: str, source: str) -> bpy.types.ShaderNodeScript:
+    """Create an INTERNAL script node whose code lives in a Text datablock (saved in the .blend)."""
+    text = bpy.data.texts.get(name) or bpy.data.texts.new(name)
+    text.clear()
+    text.write(source)
+    node = tree.nodes.new("ShaderNodeScript")
+    node.mode = "INTERNAL"
+    node.script = text
+    compile_script_node(node)
+    return node

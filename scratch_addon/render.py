@@ -1,0 +1,221 @@
+"""Scene set-up and rendering helpers shared by the CLI, tests and benchmarks."""
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import bpy
+
+from . import _deps
+
+
+def reset_scene() -> bpy.types.Scene:
+    """Empty the file (keeps add-ons enabled, unlike read_factory_settings)."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return bpy.context.scene
+
+
+def configure_cycles(scene, samples: int = 16, res=(128, 128), seed: int = 0, osl: bool = False,
+                     max_bounces: int = 8, threads: int = 0) -> None:
+    """Deterministic CPU Cycles: fixed seed, no denoising, no adaptive sampling, Standard view."""
+    scene.render.engine = "CYCLES"
+    c = scene.cycles
+    c.device = "CPU"
+    c.samples = int(samples)
+    c.preview_samples = int(samples)
+    c.use_adaptive_sampling = False
+    c.use_denoising = False
+    c.seed = int(seed)
+    c.use_animated_seed = False
+    c.shading_system = bool(osl)
+    c.max_bounces = max_bounces
+    c.glossy_bounces = max_bounces
+    c.diffuse_bounces = max_bounces
+    c.transparent_max_bounces = max_bounces
+    c.sample_clamp_direct = 0.0
+    c.sample_clamp_indirect = 0.0
+    c.blur_glossy = 0.0  # Filter Glossy widens lobes after the first bounce
+    c.caustics_reflective = True
+    scene.render.resolution_x, scene.render.resolution_y = int(res[0]), int(res[1])
+    scene.render.resolution_percentage = 100
+    scene.render.film_transparent = False
+    scene.render.threads_mode = "FIXED" if threads else "AUTO"
+    if threads:
+        scene.render.threads = threads
+    scene.view_settings.view_transform = "Standard"
+    scene.view_settings.look = "None"
+    scene.view_settings.exposure = 0.0
+    scene.view_settings.gamma = 1.0
+
+
+def uniform_world(scene, strength: float = 1.0, color=(1.0, 1.0, 1.0)) -> None:
+    """A constant environment (furnace tests)."""
+    world = bpy.data.worlds.new("Uniform") if scene.world is None else scene.world
+    scene.world = world
+    tree = world.node_tree
+    tree.nodes.clear()
+    bg = tree.nodes.new("ShaderNodeBackground")
+    bg.inputs["Color"].default_value = (*color, 1.0)
+    bg.inputs["Strength"].default_value = strength
+    out = tree.nodes.new("ShaderNodeOutputWorld")
+    tree.links.new(bg.outputs["Background"], out.inputs["Surface"])
+
+
+def studio_world(scene, strength: float = 1.0) -> None:
+    """A procedural studio environment: bright sky gradient, soft-box stripes, dark floor."""
+    world = bpy.data.worlds.new("Studio")
+    scene.world = world
+    tree = world.node_tree
+    tree.nodes.clear()
+    n, link = tree.nodes, tree.links.new
+    coord = n.new("ShaderNodeTexCoord")
+    sep = n.new("ShaderNodeSeparateXYZ")
+    link(coord.outputs["Generated"], sep.inputs["Vector"])
+    ramp = n.new("ShaderNodeValToRGB")  # elevation (z) -> sky colour
+    link(sep.outputs["Z"], ramp.inputs["Fac"])
+    els = ramp.color_ramp.elements
+    els[0].position, els[0].color = 0.45, (0.02, 0.02, 0.025, 1)
+    els[1].position, els[1].color = 1.0, (0.55, 0.65, 0.85, 1)
+    mid = els.new(0.52)
+    mid.color = (0.9, 0.85, 0.8, 1)
+    wave = n.new("ShaderNodeTexWave")  # soft-box stripes around the horizon
+    wave.wave_type, wave.bands_direction = "BANDS", "X"
+    wave.inputs["Scale"].default_value = 1.5
+    wave.inputs["Distortion"].default_value = 0.0
+    stripes = n.new("ShaderNodeMath")
+    stripes.operation = "POWER"
+    link(wave.outputs["Fac"], stripes.inputs[0])
+    stripes.inputs[1].default_value = 12.0
+    add = n.new("ShaderNodeMixRGB")
+    add.blend_type = "ADD"
+    add.inputs["Fac"].default_value = 1.0
+    link(ramp.outputs["Color"], add.inputs["Color1"])
+    scale = n.new("ShaderNodeMath")
+    scale.operation = "MULTIPLY"
+    scale.inputs[1].default_value = 3.0
+    link(stripes.outputs["Value"], scale.inputs[0])
+    link(scale.outputs["Value"], add.inputs["Color2"])
+    bg = n.new("ShaderNodeBackground")
+    bg.inputs["Strength"].default_value = strength
+    link(add.outputs["Color"], bg.inputs["Color"])
+    out = n.new("ShaderNodeOutputWorld")
+    link(bg.outputs["Background"], out.inputs["Surface"])
+
+
+def add_camera(scene, location=(0.0, -4.0, 1.6), target=(0.0, 0.0, 0.0), lens: float = 50.0, ortho_scale: float | None = None):
+    """Camera looking at ``target``; orthographic when ``ortho_scale`` is given."""
+    cam_data = bpy.data.cameras.new("Camera")
+    cam_data.lens = lens
+    if ortho_scale is not None:
+        cam_data.type = "ORTHO"
+        cam_data.ortho_scale = ortho_scale
+    cam = bpy.data.objects.new("Camera", cam_data)
+    scene.collection.objects.link(cam)
+    cam.location = location
+    d = [t - l for t, l in zip(target, location)]
+    cam.rotation_euler = (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0, math.atan2(d[1], d[0]) - math.pi / 2)
+    scene.camera = cam
+    return cam
+
+
+def add_light(scene, kind: str = "AREA", location=(2.0, -2.0, 3.0), energy: float = 200.0, size: float = 0.3,
+              color=(1.0, 1.0, 1.0), target=(0.0, 0.0, 0.0)):
+    """A small light pointing at ``target``."""
+    data = bpy.data.lights.new("Light", kind)
+    data.energy = energy
+    data.color = color
+    if kind == "AREA":
+        data.size = size
+    elif kind in ("POINT", "SPOT"):
+        data.shadow_soft_size = size
+    obj = bpy.data.objects.new("Light", data)
+    scene.collection.objects.link(obj)
+    obj.location = location
+    d = [t - l for t, l in zip(target, location)]
+    obj.rotation_euler = (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0, math.atan2(d[1], d[0]) - math.pi / 2)
+    return obj
+
+
+def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane"):
+    """A UV-mapped plane in z = 0 (U along +x)."""
+    import bmesh
+
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=size / 2, calc_uvs=True)
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    if material is not None:
+        mesh.materials.append(material)
+    return obj
+
+
+def add_torus(scene, material=None, major: float = 1.0, minor: float = 0.4, name: str = "Torus"):
+    """A UV-mapped smooth torus (U runs around the ring), a curved test object."""
+    import bmesh
+
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    nu, nv = 96, 48
+    uv_layer = bm.loops.layers.uv.new("UVMap")
+    verts = []
+    for i in range(nu):
+        a = 2 * math.pi * i / nu
+        row = []
+        for j in range(nv):
+            b = 2 * math.pi * j / nv
+            r = major + minor * math.cos(b)
+            row.append(bm.verts.new((r * math.cos(a), r * math.sin(a), minor * math.sin(b))))
+        verts.append(row)
+    for i in range(nu):
+        for j in range(nv):
+            i1, j1 = (i + 1) % nu, (j + 1) % nv
+            f = bm.faces.new((verts[i][j], verts[i1][j], verts[i1][j1], verts[i][j1]))
+            f.smooth = True
+            for loop, (ii, jj) in zip(f.loops, ((i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1))):
+                loop[uv_layer].uv = (ii / nu, jj / nv)
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    if material is not None:
+        mesh.materials.append(material)
+    return obj
+
+
+def render_to_file(scene, path: str) -> float:
+    """Render the scene and write ``path`` (format from the extension: .png or .exr); returns seconds."""
+    ext = os.path.splitext(path)[1].lower()
+    settings = scene.render.image_settings
+    if ext == ".exr":
+        settings.file_format = "OPEN_EXR"
+        settings.color_depth = "32"
+        settings.exr_codec = "ZIP"
+    elif ext == ".png":
+        settings.file_format = "PNG"
+        settings.color_mode = "RGBA" if scene.render.film_transparent else "RGB"
+        settings.color_depth = "8"
+    else:
+        raise ValueError(f"out: unsupported image extension {ext!r} (use .png or .exr)")
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    scene.render.filepath = path
+    t0 = time.perf_counter()
+    bpy.ops.render.render(write_still=True)
+    return time.perf_counter() - t0
+
+
+def render_array(scene, tmpdir: str, name: str = "render"):
+    """Render to a float EXR in ``tmpdir`` and return (RGB float32 array [H, W, 3] top-down, seconds)."""
+    import numpy as np
+
+    path = os.path.join(tmpdir, f"{name}.exr")
+    seconds = render_to_file(scene, path)
+    exr_io = _deps.sibling("precompute.exr_io")
+    channels, _ = exr_io.read_exr(path)
+    keys = {k.split(".")[-1]: k for k in channels}
+    rgb = np.stack([channels[keys[c]] for c in "RGB"], axis=-1)
+    return rgb, seconds
