@@ -5,7 +5,7 @@ VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench build clean-venv
+.PHONY: demo test bench build venv clean-venv
 .DEFAULT_GOAL := demo
 
 $(STAMP): requirements.txt
@@ -25,8 +25,15 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VPY) -m bench --list
 
+# Blender's own extension tool, shipped inside the bpy wheel.
+BLENDER_EXT = $(VPY) -c "import importlib.util as u, pathlib as p, runpy, sys; \
+	cli = sorted(p.Path(u.find_spec('bpy').origin).parent.glob('*/scripts/addons_core/bl_pkg/cli/blender_ext.py'))[-1]; \
+	sys.argv = ['blender_ext.py'] + sys.argv[1:]; runpy.run_path(str(cli), run_name='__main__')"
+
 build: $(STAMP)
-	$(VPY) -m scratch_addon.build_ext dist
+	mkdir -p dist
+	$(BLENDER_EXT) build --source-dir . --output-dir dist
+	$(BLENDER_EXT) validate dist/scratch_addon-*.zip
 
 clean-venv:
 	rm -rf $(VENV)

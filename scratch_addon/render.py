@@ -91,10 +91,18 @@ def studio_world(scene, strength: float = 1.0) -> None:
     add.blend_type = "ADD"
     add.inputs["Fac"].default_value = 1.0
     link(ramp.outputs["Color"], add.inputs["Color1"])
+    above = n.new("ShaderNodeMapRange")  # soft boxes only above the horizon
+    above.inputs["From Min"].default_value = 0.15
+    above.inputs["From Max"].default_value = 0.5
+    link(sep.outputs["Z"], above.inputs["Value"])
+    masked = n.new("ShaderNodeMath")
+    masked.operation = "MULTIPLY"
+    link(stripes.outputs["Value"], masked.inputs[0])
+    link(above.outputs["Result"], masked.inputs[1])
     scale = n.new("ShaderNodeMath")
     scale.operation = "MULTIPLY"
-    scale.inputs[1].default_value = 3.0
-    link(stripes.outputs["Value"], scale.inputs[0])
+    scale.inputs[1].default_value = 4.0
+    link(masked.outputs["Value"], scale.inputs[0])
     link(scale.outputs["Value"], add.inputs["Color2"])
     bg = n.new("ShaderNodeBackground")
     bg.inputs["Strength"].default_value = strength

@@ -58,23 +58,36 @@ def _osl_material(addon, name="OSL GGX"):
     return mat
 
 
+def _demo_like(addon, scene, material, osl):
+    r = addon.render
+    r.studio_world(scene)
+    r.add_torus(scene, material=material)
+    r.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)
+    r.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
+    r.configure_cycles(scene, samples=8, res=(48, 32), seed=3, osl=osl)
+
+
 def test_osl_script_node_compiles_headless_and_matches_svm(addon, scene, render_dir):
     mat_osl = _osl_material(addon)
     node = next(n for n in mat_osl.node_tree.nodes if n.bl_idname == "ShaderNodeScript")
-    assert {"Color", "Roughness", "Anisotropy", "Rotation"} <= set(node.inputs.keys())
+    assert {"Color", "Roughness", "Anisotropy", "Rotation", "Tangent"} <= set(node.inputs.keys())
     assert node.bytecode  # INTERNAL: bytecode stored in the node (renders without the add-on)
-    _furnace_scene(addon, scene, mat_osl, samples=32, osl=True)
+    tangent = mat_osl.node_tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    mat_osl.node_tree.links.new(tangent.outputs["Tangent"], node.inputs["Tangent"])
+    _demo_like(addon, scene, mat_osl, osl=True)
     osl_img, _ = addon.render.render_array(scene, str(render_dir), "osl")
 
     mat_svm = addon.materials.make_brushed_material(color=(1, 1, 1), roughness=0.4, anisotropy=0.6)
     glossy = next(n for n in mat_svm.node_tree.nodes["Group"].node_tree.nodes if "Bsdf" in n.bl_idname)
     glossy.distribution = "GGX"  # single scattering, like OSL microfacet("ggx")
-    scene.objects["Plane"].data.materials[0] = mat_svm
+    scene.objects["Torus"].data.materials[0] = mat_svm
     scene.cycles.shading_system = False
     svm_img, _ = addon.render.render_array(scene, str(render_dir), "svm")
-    # single-scattering GGX loses energy (< 1) identically in both; 32 spp x 1024 px: 1 %
-    assert svm_img.mean() < 0.99
-    assert abs(osl_img.mean() / svm_img.mean() - 1.0) < 0.01, (osl_img.mean(), svm_img.mean())
+    # Same closure and same random numbers: the images agree far below the 8-spp noise
+    # (a swapped anisotropy mapping measured 0.34 rel. L1 against 0.14 noise).
+    rel_l1 = np.abs(osl_img - svm_img).sum() / np.abs(svm_img).sum()
+    assert rel_l1 < 0.01, rel_l1
 
 
 def test_broken_osl_source_raises_a_clear_error(addon, scene):
