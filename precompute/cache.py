@@ -27,7 +27,7 @@ import numpy as np
 
 from . import exr_io
 
-__all__ = ["set_cache_dir", "get_cache_dir", "content_key", "cached_arrays", "CacheWarning", "clear"]
+__all__ = ["set_cache_dir", "get_cache_dir", "code_version", "content_key", "cached_arrays", "CacheWarning", "clear"]
 
 _cache_dir: str | None = None
 _PACK_WIDTH = 1024
@@ -67,6 +67,19 @@ def _canonical(obj):
     if hasattr(obj, "cache_key"):
         return _canonical(obj.cache_key())
     raise TypeError(f"cache inputs: cannot hash value of type {type(obj).__name__}")
+
+
+def code_version(*modules) -> str:
+    """SHA-256 (first 16 hex digits) of the source files of ``modules``: use as ``version`` so a
+    change of the computing code invalidates its cached tables."""
+    h = hashlib.sha256()
+    for m in modules:
+        path = getattr(m, "__file__", None)
+        if not path:
+            raise TypeError(f"code_version: module {m!r} has no source file")
+        with open(path, "rb") as f:
+            h.update(f.read())
+    return h.hexdigest()[:16]
 
 
 def content_key(namespace: str, version: str, inputs: Mapping) -> str:

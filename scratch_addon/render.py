@@ -151,6 +151,7 @@ def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane"):
 
     mesh = bpy.data.meshes.new(name)
     bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")  # create_grid fills UVs only into an existing layer
     bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=size / 2, calc_uvs=True)
     bm.to_mesh(mesh)
     bm.free()

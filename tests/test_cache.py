@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 
 import numpy as np
@@ -101,3 +102,17 @@ def test_clear_and_disabled_cache(cache_dir):
     cache.cached_arrays("t", "1", {"k": 1}, lambda: calls.append(1) or _tables(), enabled=False)
     cache.cached_arrays("t", "1", {"k": 1}, lambda: calls.append(1) or _tables(), enabled=False)
     assert len(calls) == 2 and not list(cache_dir.glob("*.exr"))
+
+
+def test_code_version_tracks_source(tmp_path, monkeypatch):
+    import importlib
+
+    monkeypatch.syspath_prepend(str(tmp_path))
+    (tmp_path / "mod_a.py").write_text("X = 1\n")
+    a = importlib.import_module("mod_a")
+    v1 = cache.code_version(a)
+    assert v1 == cache.code_version(a)
+    (tmp_path / "mod_a.py").write_text("X = 2\n")
+    assert cache.code_version(a) != v1
+    with pytest.raises(TypeError, match="no source file"):
+        cache.code_version(sys)

@@ -1,0 +1,307 @@
+"""Generator of the specialised OSL scratch SV-BRDF shader (Raymond et al. 2016, §4.2-§5, eqs. 2, 3, 4, 7).
+
+The generated shader is self-contained: lobe tables, layer rotations/offsets and the noise
+coverage table are compiled in as constant arrays, so an INTERNAL script node renders on a
+machine without the add-on.  Only the features a material uses are emitted:
+
+- no ``node_voronoi.h`` and no α code for a dense layer (scratches everywhere, Fig. 1a);
+- no γ / ρ0 code for a lossless profile (ρ0 = ρm, eq. 2 reduces to ρm);
+- no ``Base`` input when the scratches cover everything or no base is wanted;
+- no layer-selection code when all layers are summed.
+
+Per shading point (world space; n = shading normal, t = UV tangent, b = n x t):
+  layer k: scratch direction u_k = cos Θ_k t + sin Θ_k b, v_k = n x u_k;
+  (θo, φo) = (asin(ωo.u_k), atan2(ωo.v_k, ωo.n))                                 (§4.1)
+  α_k = footprint-filtered indicator [F1(y_k)]_d, y_k = diag(l, w)^-1 R(Θ_k)(u, v) + ξ_k   (eqs. 3, 7)
+  ρ = Σ α_k ρ_k / max(ᾱ, 1) + max(1 - ᾱ, 0) ρ_b                                    (eq. 4)
+  ρ_k(φo, ·) = Σ_j [R_γj(θo) w^m_j lobe^m_j + (1 - R_γj(θo)) w^0_j lobe^0_j]       (eq. 2 per lobe)
+where a lobe is ``microfacet("ggx", N'_j, u_k, alpha_x, width_j)`` with N'_j = cos t_j n + sin t_j v_k
+(see ``precompute.lobe_fit``), R_γ(θo) = (2|θo|/π)^γ and γ_j is γ at the lobe's centre.
+
+Layer rotation note: eq. 7 is printed as R(Θ_k) diag(l, w)^-1; rotating *after* the stretch would
+leave the scratches axis-aligned (a circle's image under the stretch does not rotate), so the UV
+coordinates are rotated first, as the paper's Fig. 9 shows ("stretched and rotated").
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import const_array
+
+#: Above this many layers, one layer is picked per shading point (probability α_k / ᾱ) so the
+#: closure count stays constant; at or below it every layer is summed.
+MAX_SUMMED_LAYERS = 2
+#: Layers whose α_k is below this are culled (the paper's threshold, §6.1).
+ALPHA_CULL = 1e-6
+
+
+@dataclass
+class LobeTable:
+    """Lobes of one table channel: per φo slice s, lobes ``start[s]:start[s+1]`` of the flat arrays."""
+
+    start: np.ndarray   # [MS + 1] int
+    tilt: np.ndarray    # [L] radians
+    width: np.ndarray   # [L] GGX alpha_y
+    weight: np.ndarray  # [L, 3] RGB closure weights
+    gamma: np.ndarray   # [L] γ at the lobe centre (eq. 2)
+
+    @classmethod
+    def from_fit(cls, fit: dict, weights_rgb=None, gamma_table=None) -> "LobeTable":
+        """From ``precompute.lobe_fit.fit_table`` output (zero-weight slots dropped)."""
+        w = np.asarray(fit["weights"], float)
+        M, K = w.shape
+        rgb = np.repeat(w[..., None], 3, -1) if weights_rgb is None else np.asarray(weights_rgb, float)
+        keep = (rgb.max(-1) > 0)
+        counts = keep.sum(1)
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        tilt = np.asarray(fit["tilts"], float)[keep]
+        width = np.asarray(fit["widths"], float)[keep]
+        if gamma_table is None:
+            gamma = np.ones(int(start[-1]))
+        else:
+            g = np.asarray(gamma_table, float)  # [M, M] γ(φo, φi): sample at each lobe's centre φi = 2t - φo
+            phi_o = -np.pi / 2 + (np.arange(M) + 0.5) * np.pi / M
+            phi_c = 2.0 * np.asarray(fit["tilts"], float) - phi_o[:, None]
+            i = np.clip(np.floor((phi_c + np.pi / 2) / np.pi * g.shape[1]).astype(int), 0, g.shape[1] - 1)
+            gamma = g[np.arange(M)[:, None], i][keep] if g.shape[0] == M else np.ones(int(start[-1]))
+        return cls(start, tilt, width, rgb[keep], gamma)
+
+    @property
+    def n_slices(self) -> int:
+        return len(self.start) - 1
+
+
+@dataclass
+class ShaderSpec:
+    """Everything the generated shader needs; see the module docstring for the model."""
+
+    lobes_m: LobeTable
+    lobes_0: LobeTable | None = None        # None: lossless profile, ρ0 = ρm
+    alpha_x: float = 1e-4
+    layers: object | None = None            # precompute.scratch_layers.LayerParams, None = dense
+    theta_k: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    xi_k: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    coverage: np.ndarray = field(default_factory=lambda: np.zeros(0))  # c̄ on precompute.scratch_layers.COVERAGE_D
+    coverage_dmax: float = 1.5
+    use_base: bool = True
+    name: str = "scratch_svbrdf"
+
+
+def _lobe_arrays(prefix: str, t: LobeTable) -> str:
+    return (const_array(f"{prefix}_START", t.start, "int")
+            + const_array(f"{prefix}_TILT", t.tilt)
+            + const_array(f"{prefix}_AY", t.width)
+            + const_array(f"{prefix}_W", t.weight.ravel())
+            + const_array(f"{prefix}_GAMMA", t.gamma))
+
+
+def generate(spec: ShaderSpec) -> str:
+    """OSL source of the specialised scratch shader for ``spec``."""
+    layered = spec.layers is not None
+    lossless = spec.lobes_0 is None
+    use_base = spec.use_base and layered
+    ms = spec.lobes_m.n_slices
+    if not lossless and spec.lobes_0.n_slices != ms:
+        raise ValueError("lobes_0 and lobes_m must have the same number of phi_o slices")
+    n_layers = spec.layers.n_layers if layered else 1
+    summed = n_layers <= MAX_SUMMED_LAYERS
+
+    src = ['// Generated by osl/scratch_svbrdf.py -- do not edit (Raymond et al. 2016 scratch SV-BRDF).',
+           '#include "stdcycles.h"']
+    if layered:
+        src.append('#include "node_voronoi.h"')
+    src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}")
+    src.append(_LOBE_FUNC.replace("@LOSSLESS@", "1" if lossless else "0"))
+    if layered:
+        src.append(_DISK_OVERLAP)
+    params = []
+    if use_base:
+        params.append("    closure color Base = 0,")
+    if layered:
+        lp = spec.layers
+        params += [f"    float Length = {lp.length:.9g},", f"    float Width = {lp.width:.9g},",
+                   f"    float Density = {lp.density:.9g},"]
+    params += ["    vector Tangent = 0,  // connect a Tangent node (UV map): the scratch direction u",
+               "    color Tint = color(1.0),", "    output closure color BSDF = 0,", "    output float Alpha = 0)"]
+    if layered:
+        params.insert(0, "    point UV = 0,  // connect a UV Map node: scratch layers live in UV space (eq. 7)")
+    src.append(f"shader {spec.name}(\n" + "\n".join(params) + "\n{")
+    body = [_lobe_arrays("LM", spec.lobes_m)]
+    if not lossless:
+        body.append(_lobe_arrays("L0", spec.lobes_0))
+    if layered:
+        body.append(const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
+                    + const_array("COV", spec.coverage))
+        body.append(f"    float COV_DMAX = {spec.coverage_dmax:.9g};")
+    body.append(_FRAME)
+    if layered:
+        body.append(_ALPHA.replace("@CULL@", f"{ALPHA_CULL:.9g}"))
+        body.append(_COMBINE_SUMMED if summed else _COMBINE_PICKED)
+        if use_base:
+            body.append("    BSDF += max(1.0 - alpha_sum, 0.0) * Base;")
+    else:
+        body.append("    // dense layer: scratches everywhere (Fig. 1a)\n    Alpha = 1.0;\n    float THETA_K[1] = {0.0};\n    {\n    int k = 0;"
+                    + _LAYER_LOBES + "    BSDF = Tint * rho;\n    }")
+    src.append("\n".join(body))
+    src.append("}")
+    return "\n".join(src) + "\n"
+
+
+# --- OSL snippets -------------------------------------------------------------------------------
+# The lobe sum lives in a macro-like function taking the lobe arrays by name (OSL passes arrays by
+# reference).  R_γ(θo) = (2|θo|/π)^γ (eq. 2).
+_LOBE_FUNC = r'''
+#define LOSSLESS @LOSSLESS@
+
+closure color lobe_set(int start[], float tilt[], float ay[], float w[], float gam[], int s,
+                       float theta_o, vector u, vector v, normal n, vector wo, int use_r, int r_is_m)
+{
+    closure color c = 0;
+    float x = 2.0 * abs(theta_o) / M_PI;
+    for (int j = start[s]; j < start[s + 1]; j++) {
+        // No horizon culling: the fit (precompute.lobe_fit) already accounts for what Cycles
+        // loses below the horizon, and lobes centred near grazing carry real energy.
+        normal Nl = normalize(cos(tilt[j]) * n + sin(tilt[j]) * v);
+        color wj = color(w[3 * j], w[3 * j + 1], w[3 * j + 2]);
+        if (use_r) {
+            float r = (x > 0.0) ? pow(x, gam[j]) : 0.0;
+            wj *= r_is_m ? r : (1.0 - r);
+        }
+        c += wj * microfacet("ggx", Nl, u, AX, ay[j], 0.0, 0);
+    }
+    return c;
+}
+'''
+
+_DISK_OVERLAP = r'''
+// Fraction of a disk footprint (radius R) covered by a scratch disk (radius a) at centre distance r:
+// lens area of two circles / (pi R^2).
+float disk_overlap(float a, float R, float r)
+{
+    if (r >= a + R) return 0.0;
+    if (r <= abs(a - R)) return (a < R) ? (a * a) / (R * R) : 1.0;
+    float c1 = clamp((r * r + a * a - R * R) / (2.0 * r * a), -1.0, 1.0);
+    float c2 = clamp((r * r + R * R - a * a) / (2.0 * r * R), -1.0, 1.0);
+    float k = (-r + a + R) * (r + a - R) * (r - a + R) * (r + a + R);
+    float lens = a * a * acos(c1) + R * R * acos(c2) - 0.5 * sqrt(max(k, 0.0));
+    return clamp(lens / (M_PI * R * R), 0.0, 1.0);
+}
+'''
+
+_FRAME = r'''
+    // Frame: n = shading normal, t = UV tangent (Tangent input, world space), b = n x t.
+    // (getattribute("geom:uv"/"geom:tangent") alone does not make Cycles export the attributes:
+    // the material builder links UV Map and Tangent nodes, which request them.)
+    normal n = N;
+    vector T = (length(Tangent) > 0.0) ? Tangent : dPdu;
+    vector t = T - dot(T, n) * n;
+    t = (length(t) > 1e-8) ? normalize(t) : normalize(cross(n, abs(n[0]) < 0.9 ? vector(1, 0, 0) : vector(0, 1, 0)));
+    vector b = cross(n, t);
+    vector wo = I;  // towards the viewer
+    // Two decorrelated per-sample random numbers (OSL has no sample index; P jitters per sample).
+    float h_slice = hashnoise(P, dot(wo, vector(12.9898, 78.233, 37.719)));
+    float h_layer = hashnoise(P, dot(wo, vector(93.989, 67.345, 24.113)) + 17.0);
+'''
+
+_ALPHA = r'''
+    // UV and its footprint. Cycles' ray differentials are isotropic (no foreshortening), so the
+    // footprint is stretched by 1/cos(view) along the view direction projected into the surface.
+    point uvw = UV;
+    float r_uv = max(max(length(Dx(uvw)), length(Dy(uvw))), 1e-9);
+    float cos_v = max(abs(dot(wo, n)), 0.05);
+    float pv_t = dot(wo, t), pv_b = dot(wo, b);
+    float pv_len = hypot(pv_t, pv_b);
+    if (pv_len < 1e-6) { pv_t = 1.0; pv_b = 0.0; pv_len = 1.0; }
+    pv_t /= pv_len; pv_b /= pv_len;
+    // Ellipse semi-axes in UV: a1 across the view (r_uv), a2 along it (r_uv / cos).
+    float a1u = -pv_b * r_uv, a1v = pv_t * r_uv;
+    float a2u = pv_t * r_uv / cos_v, a2v = pv_b * r_uv / cos_v;
+
+    float d = clamp(Density, 0.0, 1.0);
+    float cbar;  // mean coverage c̄(d) (precompute.scratch_layers.mean_coverage), linear interpolation
+    {
+        float x = d / COV_DMAX * (arraylength(COV) - 1);
+        int i0 = min((int)floor(x), arraylength(COV) - 2);
+        cbar = mix(COV[i0], COV[i0 + 1], x - i0);
+    }
+    float inv_l = 1.0 / max(Length, 1e-9), inv_w = 1.0 / max(Width, 1e-9);
+    float alpha[NL];
+    float alpha_sum = 0.0;
+    for (int k = 0; k < NL; k++) {
+        float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
+        // y = diag(l, w)^-1 R(Θk) (u, v) + ξk  (eq. 7, rotation first: see the generator docstring)
+        vector2 y = vector2((ck * uvw[0] + sk * uvw[1]) * inv_l + XI_K[2 * k],
+                            (-sk * uvw[0] + ck * uvw[1]) * inv_w + XI_K[2 * k + 1]);
+        // footprint semi-axes in noise space
+        float e1x = (ck * a1u + sk * a1v) * inv_l, e1y = (-sk * a1u + ck * a1v) * inv_w;
+        float e2x = (ck * a2u + sk * a2v) * inv_l, e2y = (-sk * a2u + ck * a2v) * inv_w;
+        float spread = max(hypot(e1x, e1y), hypot(e2x, e2y));
+        float fade = smoothstep(0.2, 0.8, spread);  // footprint spans cells: converge to c̄(d)
+        float a = cbar;
+        if (fade < 1.0) {
+            // α over a disk footprint of radius R = spread: the disk-disk overlap with each
+            // scratch disk [F1 <= d] of the 3x3 Voronoi cells (Cycles' node_voronoi.h feature
+            // points), combined as a union. Exact in the sharp limit and mean-preserving.
+            float R = max(spread, 1e-6);
+            vector2 cell_f = vector2(floor(y.x), floor(y.y));
+            int2 cell = vec2_to_int2(cell_f);
+            float miss = 1.0;
+            for (int j = -1; j <= 1; j++) {
+                for (int i = -1; i <= 1; i++) {
+                    int2 off = {i, j};
+                    vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
+                    miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
+                }
+            }
+            a = mix(1.0 - miss, cbar, fade);
+        }
+        alpha[k] = (a < @CULL@) ? 0.0 : a;  // layer culling (§6.1)
+        alpha_sum += alpha[k];
+    }
+    Alpha = alpha_sum;
+'''
+
+_LAYER_LOBES = r'''
+        float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
+        vector u = ck * t + sk * b;
+        vector v = cross(n, u);
+        float theta_o = asin(clamp(dot(wo, u), -1.0, 1.0));
+        float phi_o = atan2(dot(wo, v), dot(wo, n));
+        // stochastic linear interpolation between the two nearest φo slices
+        float xs = (phi_o + M_PI_2) / M_PI * MS - 0.5;
+        int s = (int)floor(xs);
+        if (h_slice < xs - s) s += 1;
+        s = clamp(s, 0, MS - 1);
+#if LOSSLESS
+        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, theta_o, u, v, n, wo, 0, 1);
+#else
+        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, theta_o, u, v, n, wo, 1, 1)
+                          + lobe_set(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, theta_o, u, v, n, wo, 1, 0);
+#endif
+'''
+
+_COMBINE_SUMMED = r'''
+    // eq. 4: all layers summed
+    float norm = 1.0 / max(alpha_sum, 1.0);
+    for (int k = 0; k < NL; k++) {
+        if (alpha[k] <= 0.0) continue;
+''' + _LAYER_LOBES + r'''
+        BSDF += (alpha[k] * norm) * Tint * rho;
+    }
+'''
+
+_COMBINE_PICKED = r'''
+    // eq. 4 with one layer picked with probability α_k / ᾱ: weight (α_k / p_k) / max(ᾱ, 1) = min(ᾱ, 1)
+    if (alpha_sum > 0.0) {
+        int k = NL - 1;
+        float acc = 0.0;
+        for (int j = 0; j < NL; j++) {
+            acc += alpha[j];
+            if (h_layer * alpha_sum < acc) { k = j; break; }
+        }
+''' + _LAYER_LOBES + r'''
+        BSDF += min(alpha_sum, 1.0) * Tint * rho;
+    }
+'''

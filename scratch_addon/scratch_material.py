@@ -1,0 +1,227 @@
+"""Build the scratch SV-BRDF material (Raymond et al. 2016) in a Cycles node tree.
+
+Pipeline (all table work is cached by content hash in ``precompute.cache``):
+profile + Fresnel -> ``precompute.scratch_brdf.simulate`` (ρ0, ρm, γ) ->
+``precompute.scratch_lobes.lobe_tables`` (≤ K tilted GGX lobes per φo slice) ->
+``osl.scratch_svbrdf.generate`` (specialised OSL source, tables compiled in) ->
+INTERNAL script node, with UV Map and Tangent nodes wired in and the base closure linked
+to its ``Base`` input.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import bpy
+
+from . import _deps, materials, osl_compile
+
+profiles = _deps.sibling("precompute.profiles")
+fresnel_mod = _deps.sibling("precompute.fresnel")
+scratch_brdf = _deps.sibling("precompute.scratch_brdf")
+scratch_lobes = _deps.sibling("precompute.scratch_lobes")
+scratch_layers = _deps.sibling("precompute.scratch_layers")
+osl_gen = _deps.sibling("osl.scratch_svbrdf")
+
+BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
+MODES = ("lobes", "reference")
+
+
+@dataclass
+class ScratchParams:
+    """Validated inputs of ``make_scratched_material`` (see ``api.make_scratched_material``)."""
+
+    profile: object
+    fresnel: object
+    layers: object  # LayerParams or None (dense)
+    lobes: int
+    base: dict
+    mode: str
+    resolution: int
+    slices: int
+    tint: tuple
+
+
+def _as_layers(layers):
+    if layers is None or isinstance(layers, scratch_layers.LayerParams):
+        return layers
+    if isinstance(layers, dict):
+        try:
+            return scratch_layers.LayerParams(**layers)
+        except TypeError as exc:
+            raise ValueError(f"layers: {exc}") from None
+    if isinstance(layers, (int,)) and not isinstance(layers, bool):
+        return scratch_layers.LayerParams(n_layers=layers)
+    raise ValueError(f"layers must be None (dense), an int (count), a dict or a LayerParams; got {layers!r}")
+
+
+def _as_base(base) -> dict:
+    if isinstance(base, str):
+        base = {"type": base}
+    if not isinstance(base, dict) or base.get("type") not in BASE_TYPES:
+        raise ValueError(f"base must be one of {', '.join(BASE_TYPES)} (or a dict with 'type'); got {base!r}")
+    out = dict(base)
+    if "color" in out:
+        out["color"] = materials.check_color("base color", out["color"])
+    if "roughness" in out:
+        out["roughness"] = materials.check_range("base roughness", out["roughness"], 0.0, 1.0)
+    return out
+
+
+def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
+             slices=64, tint=(1.0, 1.0, 1.0)) -> ScratchParams:
+    """Check every parameter; raise ValueError naming the parameter and its allowed range."""
+    if profile is None:
+        profile = profiles.quartic(0.2)
+    if not isinstance(profile, profiles.Profile):
+        raise ValueError(f"profile must be a precompute.profiles profile (quartic, v_groove, tabulated...); got {profile!r}")
+    if fresnel is not None and not isinstance(fresnel, fresnel_mod.Fresnel):
+        if isinstance(fresnel, str):
+            fresnel = fresnel_mod.conductor_preset(fresnel)
+        else:
+            raise ValueError(f"fresnel must be None (lossless), a metal name or a precompute.fresnel model; got {fresnel!r}")
+    if isinstance(lobes, bool) or not isinstance(lobes, int) or not 1 <= lobes <= 16:
+        raise ValueError(f"lobes must be an integer in [1, 16], got {lobes!r}")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if resolution not in (64, 128, 256, 512):
+        raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
+    if slices not in (16, 32, 64, 128) or slices > resolution:
+        raise ValueError(f"slices must be one of 16, 32, 64, 128 and <= resolution; got {slices!r}")
+    rgba = materials.check_color("tint", tint)
+    return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices, rgba[:3])
+
+
+def _check_uvs_for(obj_meshes) -> None:
+    for mesh in obj_meshes:
+        if not mesh.uv_layers:
+            raise ValueError(f"mesh {mesh.name!r} has no UV map: scratch layers and directions follow the UVs "
+                             "(add one with UV > Unwrap or Smart UV Project)")
+
+
+def check_uvs(material: bpy.types.Material) -> None:
+    """Raise ValueError if an object using ``material`` has a mesh without UVs."""
+    users = [o.data for o in bpy.data.objects if o.type == "MESH" and material.name in [m.name for m in o.data.materials if m]]
+    _check_uvs_for(users)
+
+
+def _base_node(tree, params: ScratchParams):
+    """The base material closure node (eq. 4's ρ_b), or None."""
+    b = params.base
+    kind = b["type"]
+    n = tree.nodes
+    if kind == "none":
+        return None
+    if kind == "mirror":
+        f = params.fresnel
+        if f is None:
+            node = n.new("ShaderNodeBsdfGlossy")
+            node.distribution = "GGX"
+            node.inputs["Roughness"].default_value = 0.0
+            node.inputs["Color"].default_value = (1, 1, 1, 1)
+            return node
+        if hasattr(f, "k"):  # conductor (exact or Lazanyi): Cycles' own physical conductor
+            node = n.new("ShaderNodeBsdfMetallic")
+            node.fresnel_type = "PHYSICAL_CONDUCTOR"
+            node.inputs["Roughness"].default_value = 0.0
+            nn = [float(x) for x in (list(f.n) * 3)[:3]] if f.n.size == 1 else [float(x) for x in f.n]
+            kk = [float(x) for x in (list(f.k) * 3)[:3]] if f.k.size == 1 else [float(x) for x in f.k]
+            node.inputs["IOR"].default_value = nn
+            node.inputs["Extinction"].default_value = kk
+            return node
+        node = n.new("ShaderNodeBsdfPrincipled")  # dielectric mirror: specular only
+        node.inputs["Base Color"].default_value = (0, 0, 0, 1)
+        node.inputs["Roughness"].default_value = 0.0
+        f0 = float(f.f0.mean())
+        node.inputs["IOR"].default_value = (1 + f0 ** 0.5) / max(1 - f0 ** 0.5, 1e-3)
+        return node
+    if kind == "diffuse":
+        node = n.new("ShaderNodeBsdfDiffuse")
+        node.inputs["Color"].default_value = b.get("color", (0.5, 0.5, 0.5, 1.0))
+        return node
+    if kind == "glossy":
+        node = n.new("ShaderNodeBsdfGlossy")
+        node.distribution = "MULTI_GGX"
+        node.inputs["Color"].default_value = b.get("color", (0.9, 0.9, 0.9, 1.0))
+        node.inputs["Roughness"].default_value = b.get("roughness", 0.1)
+        return node
+    node = n.new("ShaderNodeBsdfPrincipled")
+    node.inputs["Base Color"].default_value = b.get("color", (0.8, 0.1, 0.1, 1.0))
+    node.inputs["Roughness"].default_value = b.get("roughness", 0.3)
+    if "metallic" in b:
+        node.inputs["Metallic"].default_value = materials.check_range("base metallic", b["metallic"], 0.0, 1.0)
+    return node
+
+
+def shader_source(params: ScratchParams, brdf=None, lobe_data=None) -> str:
+    """Generate the specialised OSL source for ``params`` (tables computed or taken from the cache)."""
+    if brdf is None:
+        brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    if lobe_data is None:
+        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
+
+    def table(entry):
+        if entry is None:
+            return None
+        fit = {"weights": entry["weights"][..., 0], "tilts": entry["tilts"], "widths": entry["widths"]}
+        t = osl_gen.LobeTable.from_fit(fit, weights_rgb=entry["weights"])
+        keep = entry["weights"].max(-1) > 0
+        t.gamma = entry["gamma"][keep]
+        return t
+
+    layers = params.layers
+    theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
+    spec = osl_gen.ShaderSpec(
+        lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]), alpha_x=lobe_data["alpha_x"],
+        layers=layers, use_base=params.base["type"] != "none",
+        **({} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=scratch_layers.coverage_table()[1])),
+    )
+    return osl_gen.generate(spec)
+
+
+def _jsonable(v):
+    return v.tolist() if hasattr(v, "tolist") else float(v)
+
+
+def build(material: bpy.types.Material, params: ScratchParams, progress=None) -> bpy.types.Material:
+    """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way."""
+    step = progress or (lambda _f: None)
+    step(0.05)
+    brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    step(0.4)
+    lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
+    step(0.8)
+    src = shader_source(params, brdf, lobe_data)
+    tree = material.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("ShaderNodeOutputMaterial")
+    out.location = (500, 0)
+    text_name = f"{material.name}.scratch.osl"
+    script = osl_compile.script_node_from_source(tree, text_name, src)
+    script.location = (200, 0)
+    uv = tree.nodes.new("ShaderNodeUVMap")
+    uv.location = (-200, 100)
+    tangent = tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-200, -50)
+    if "UV" in script.inputs:
+        tree.links.new(uv.outputs["UV"], script.inputs["UV"])
+    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    script.inputs["Tint"].default_value = (*params.tint, 1.0) if len(script.inputs["Tint"].default_value) == 4 else params.tint
+    base = _base_node(tree, params)
+    if base is not None and "Base" in script.inputs:
+        base.location = (-200, -250)
+        tree.links.new(base.outputs[0], script.inputs["Base"])
+    tree.links.new(script.outputs["BSDF"], out.inputs["Surface"])
+    if hasattr(material, "use_bump_map_correction"):
+        material.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
+    material["scratch_addon_kind"] = "scratch_svbrdf"
+    material["scratch_addon_fit_error"] = float(max(lobe_data["m"]["error"].max(),
+                                                   0.0 if lobe_data["0"] is None else lobe_data["0"]["error"].max()))
+    material["scratch_addon_params"] = json.dumps({
+        "profile": params.profile.cache_key(), "fresnel": None if params.fresnel is None else params.fresnel.cache_key(),
+        "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
+        "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
+        "resolution": params.resolution, "slices": params.slices}, default=_jsonable)
+    step(1.0)
+    return material
