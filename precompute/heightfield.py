@@ -1,0 +1,290 @@
+"""Height-field input for measured microgeometry (Dong et al. 2015, §4).
+
+A :class:`HeightField` holds a regular grid of surface heights in micrometres, the lateral pixel
+size in micrometres, and missing points as NaN (profilometers return no height on steep or
+ambiguous spots; the paper sees < 5 % of such points).  Array axis 0 is ``y`` (rows), axis 1 is
+``x`` (columns); the lateral position of ``heights[j, i]`` is ``(i * pixel_um, j * pixel_um)``.
+
+Readers (:func:`load_heightfield`):
+
+* ``.npy`` - a 2D float array; ``.npz`` - key ``heights`` (or the only array) and optional scalar
+  ``pixel_um``;
+* ``.exr`` - a float EXR read with :func:`precompute.exr_io.read_exr`, channel ``Z``/``height``/``Y``
+  or the only channel; ``pixel_um`` may come from the file's metadata;
+* ``.txt``, ``.csv``, ``.asc``, ``.dat`` - a plain grid of numbers (whitespace or comma separated,
+  ``#`` comments, ``nan`` or empty cells for missing points);
+* instrument formats (``.sur``, ``.plu``, ``.datx``, ``.x3p``, ``.vk4`` ...) are *not* parsed here:
+  the well-kept ``surfalize`` package reads them and is used if it is installed (it is not a
+  requirement of this project; install it yourself to enable these formats).
+
+Height units: values are taken as micrometres unless ``height_scale`` says otherwise (e.g.
+``height_scale=1e-3`` for nanometre data).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["HeightField", "load_heightfield", "save_heightfield", "HeightFieldError", "INSTRUMENT_SUFFIXES",
+           "as_heightfield", "detilt", "gaussian_surface", "spectral_slope_covariance"]
+
+INSTRUMENT_SUFFIXES = (".sur", ".plu", ".plux", ".datx", ".x3p", ".vk4", ".vk6", ".vk7", ".sdf", ".opd", ".nms", ".gwy")
+TEXT_SUFFIXES = (".txt", ".csv", ".asc", ".dat", ".xyz")
+
+
+class HeightFieldError(ValueError):
+    """A height-field file or array is unusable (bad shape, no data, unreadable)."""
+
+
+@dataclass(frozen=True)
+class HeightField:
+    """Heights (µm) on a square grid of pitch ``pixel_um`` (µm); NaN marks missing points."""
+
+    heights: np.ndarray
+    pixel_um: float
+    source: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        h = np.asarray(self.heights)
+        if h.dtype.kind not in "fiu":
+            raise HeightFieldError(f"heights: expected a real numeric array, got dtype {h.dtype}")
+        h = np.array(h, dtype=np.float64)  # own copy
+        if h.ndim != 2:
+            raise HeightFieldError(f"heights: expected a 2D array, got shape {h.shape}")
+        if min(h.shape) < 2:
+            raise HeightFieldError(f"heights: need at least 2x2 points, got shape {h.shape}")
+        h[~np.isfinite(h)] = np.nan  # +-inf from instruments are missing points too
+        if not np.any(np.isfinite(h)):
+            raise HeightFieldError("heights: every point is missing (NaN)")
+        p = float(self.pixel_um) if np.ndim(self.pixel_um) == 0 else float("nan")
+        if not (np.isfinite(p) and 1e-6 <= p <= 1e6):
+            raise HeightFieldError(f"pixel_um: must be a finite pixel size in [1e-6, 1e6] micrometres, got {self.pixel_um!r}")
+        h.setflags(write=False)
+        object.__setattr__(self, "heights", h)
+        object.__setattr__(self, "pixel_um", p)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.heights.shape
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Boolean mask of measured (non-NaN) points."""
+        return np.isfinite(self.heights)
+
+    @property
+    def missing_fraction(self) -> float:
+        return float(1.0 - self.valid.mean())
+
+    @property
+    def size_um(self) -> tuple[float, float]:
+        """Lateral extent ``(width_x, height_y)`` in µm."""
+        ny, nx = self.shape
+        return nx * self.pixel_um, ny * self.pixel_um
+
+    def detilted(self) -> "HeightField":
+        """Copy with the least-squares plane through the valid points removed (mean normal -> +z)."""
+        return HeightField(detilt(self.heights, self.pixel_um), self.pixel_um, self.source)
+
+    def crop(self, y0: int, y1: int, x0: int, x1: int) -> "HeightField":
+        return HeightField(self.heights[y0:y1, x0:x1], self.pixel_um, self.source)
+
+    def cache_key(self) -> dict:
+        return {"heights": self.heights, "pixel_um": self.pixel_um}
+
+
+def as_heightfield(heights, pixel_um=None) -> HeightField:
+    """Accept a :class:`HeightField` or a 2D array plus ``pixel_um``."""
+    if isinstance(heights, HeightField):
+        if pixel_um is not None and float(pixel_um) != heights.pixel_um:
+            raise HeightFieldError("pixel_um: conflicts with the HeightField's own pixel size")
+        return heights
+    if pixel_um is None:
+        raise HeightFieldError("pixel_um: required (micrometres per pixel) when heights is a plain array")
+    return HeightField(heights, pixel_um)
+
+
+def detilt(heights: np.ndarray, pixel_um: float) -> np.ndarray:
+    """Remove the least-squares plane ``a + b x + c y`` fitted to the valid points; NaNs kept."""
+    h = np.asarray(heights, dtype=np.float64)
+    ok = np.isfinite(h)
+    ny, nx = h.shape
+    y, x = np.mgrid[0:ny, 0:nx] * pixel_um
+    G = np.stack([np.ones(ok.sum()), x[ok] - x[ok].mean(), y[ok] - y[ok].mean()], -1)
+    coef, *_ = np.linalg.lstsq(G, h[ok], rcond=None)
+    out = h - coef[0] - coef[1] * (x - x[ok].mean()) - coef[2] * (y - y[ok].mean())
+    out[~ok] = np.nan
+    return out
+
+
+def _pick_npz(z, path):
+    keys = list(z.keys())
+    if "heights" in keys:
+        h = z["heights"]
+    else:
+        arrays = [k for k in keys if k != "pixel_um" and z[k].ndim == 2]
+        if len(arrays) != 1:
+            raise HeightFieldError(f"{path}: .npz needs a 'heights' array (found keys {keys})")
+        h = z[arrays[0]]
+    px = float(z["pixel_um"]) if "pixel_um" in keys and np.ndim(z["pixel_um"]) == 0 else None
+    return h, px
+
+
+def _read_text(path):
+    rows = []
+    with open(path, "r", encoding="utf-8", errors="strict") as f:
+        for line in f:
+            line = line.split("#", 1)[0].strip()
+            if not line:
+                continue
+            cells = line.replace(";", ",").split(",") if "," in line or ";" in line else line.split()
+            try:
+                rows.append([float(c) if c.strip() not in ("", "-") else np.nan for c in cells])
+            except ValueError as exc:
+                raise HeightFieldError(f"{path}: non-numeric cell in text grid ({exc})") from exc
+    if not rows:
+        raise HeightFieldError(f"{path}: empty text grid")
+    widths = {len(r) for r in rows}
+    if len(widths) != 1:
+        raise HeightFieldError(f"{path}: ragged text grid (row lengths {sorted(widths)})")
+    return np.array(rows, dtype=np.float64)
+
+
+def _read_exr(path):
+    from .exr_io import read_exr  # noqa: PLC0415 - OpenEXR only when needed
+
+    chans, meta = read_exr(path)
+    for name in ("Z", "height", "heights", "Y", "R"):
+        if name in chans:
+            h = chans[name]
+            break
+    else:
+        if len(chans) != 1:
+            raise HeightFieldError(f"{path}: EXR needs a 'Z' or 'height' channel (found {sorted(chans)})")
+        h = next(iter(chans.values()))
+    px = None
+    if isinstance(meta, dict) and "pixel_um" in meta:
+        px = float(meta["pixel_um"])
+    return h.astype(np.float64), px
+
+
+def _read_instrument(path):
+    try:
+        from surfalize import Surface  # noqa: PLC0415 - optional, well-kept instrument reader
+    except ImportError as exc:
+        raise HeightFieldError(
+            f"{path}: instrument format; install the 'surfalize' package to read it, or export the scan "
+            "as .npy/.npz/.txt/.exr") from exc
+    s = Surface.load(path)
+    step_x, step_y = float(s.step_x), float(s.step_y)
+    if not np.isclose(step_x, step_y, rtol=1e-3):
+        raise HeightFieldError(f"{path}: non-square pixels ({step_x} x {step_y} µm) are not supported")
+    return np.asarray(s.data, dtype=np.float64), step_x
+
+
+def load_heightfield(path: str | os.PathLike, pixel_um: float | None = None, height_scale: float = 1.0) -> HeightField:
+    """Read a height field (heights in µm after ``height_scale``; ``pixel_um`` in µm).
+
+    ``pixel_um`` overrides a value stored in the file; one of the two is required.  Raises
+    :class:`HeightFieldError` (a ``ValueError``) for missing, unreadable or malformed files.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise HeightFieldError(f"{path}: no such file")
+    if not (np.isfinite(height_scale) and height_scale > 0):
+        raise HeightFieldError(f"height_scale: must be a positive finite factor to micrometres, got {height_scale}")
+    suffix = os.path.splitext(path)[1].lower()
+    stored_px = None
+    try:
+        if suffix == ".npy":
+            h = np.load(path, allow_pickle=False)
+        elif suffix == ".npz":
+            with np.load(path, allow_pickle=False) as z:
+                h, stored_px = _pick_npz(z, path)
+        elif suffix == ".exr":
+            h, stored_px = _read_exr(path)
+        elif suffix in TEXT_SUFFIXES:
+            h = _read_text(path)
+        elif suffix in INSTRUMENT_SUFFIXES:
+            h, stored_px = _read_instrument(path)
+        else:
+            raise HeightFieldError(f"{path}: unknown height-field format {suffix!r} "
+                                   f"(use .npy, .npz, .exr, {', '.join(TEXT_SUFFIXES)})")
+    except HeightFieldError:
+        raise
+    except (OSError, ValueError, EOFError, UnicodeDecodeError) as exc:
+        raise HeightFieldError(f"{path}: unreadable height field ({exc})") from exc
+    px = pixel_um if pixel_um is not None else stored_px
+    if px is None:
+        raise HeightFieldError(f"pixel_um: {path} stores no pixel size; pass pixel_um (micrometres)")
+    h = np.asarray(h)
+    if h.dtype.kind not in "fiu":
+        raise HeightFieldError(f"{path}: heights must be numeric, got dtype {h.dtype}")
+    return HeightField(h.astype(np.float64) * height_scale, px, source=path)
+
+
+def save_heightfield(path: str | os.PathLike, hf: HeightField) -> None:
+    """Write a :class:`HeightField` as ``.npz`` (heights + pixel_um) or float ``.exr`` (channel ``Z``)."""
+    path = os.fspath(path)
+    suffix = os.path.splitext(path)[1].lower()
+    if suffix == ".npz":
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, heights=hf.heights, pixel_um=np.float64(hf.pixel_um))
+        os.replace(tmp, path)
+    elif suffix == ".exr":
+        from .exr_io import write_exr  # noqa: PLC0415
+
+        write_exr(path, {"Z": hf.heights.astype(np.float32)}, meta={"pixel_um": hf.pixel_um, "units": "um"})
+    else:
+        raise HeightFieldError(f"path: save_heightfield writes .npz or .exr, got {suffix!r}")
+
+
+# ----------------------------------------------------------------------------- synthetic surfaces
+
+
+def gaussian_surface(shape: tuple[int, int], pixel_um: float, rms_height_um: float, corr_um,
+                     seed: int = 0) -> HeightField:
+    """Seeded periodic Gaussian random surface with a Gaussian spectrum (test surfaces, issue item 7).
+
+    Height covariance ``C(x, y) = s^2 exp(-x^2/lx^2 - y^2/ly^2)`` with ``corr_um = lx`` or
+    ``(lx, ly)``; ``lx >> ly`` gives a brushed surface with scratches along x.  Exact amplitude
+    spectrum with uniformly random phases, so the realisation's height variance equals
+    ``rms_height_um^2`` exactly and its slope variances equal :func:`spectral_slope_covariance`
+    (continuum value ``2 s^2 / l^2`` per axis when ``l >> pixel_um``).
+    """
+    ny, nx = (int(v) for v in shape)
+    if ny < 2 or nx < 2:
+        raise HeightFieldError(f"shape: need at least 2x2 points, got {shape}")
+    lx, ly = np.broadcast_to(np.asarray(corr_um, dtype=np.float64), (2,))
+    if not (lx > 0 and ly > 0 and rms_height_um > 0 and pixel_um > 0):
+        raise HeightFieldError("corr_um, rms_height_um, pixel_um: must be positive")
+    kx = 2 * np.pi * np.fft.fftfreq(nx, pixel_um)
+    ky = 2 * np.pi * np.fft.fftfreq(ny, pixel_um)
+    KX, KY = np.meshgrid(kx, ky)
+    amp = np.exp(-(KX**2 * lx**2 + KY**2 * ly**2) / 8.0)  # sqrt of the PSD exp(-k^2 l^2 / 4)
+    amp[0, 0] = 0.0
+    rng = np.random.default_rng(seed)
+    noise = np.fft.fft2(rng.standard_normal((ny, nx)))
+    h = np.fft.ifft2(amp * noise / np.maximum(np.abs(noise), 1e-300)).real
+    h *= rms_height_um / np.sqrt(np.mean(h * h))
+    return HeightField(h, pixel_um, source=f"gaussian_surface(seed={seed})")
+
+
+def spectral_slope_covariance(heights: np.ndarray, pixel_um: float, sigma_um: float = 0.0) -> np.ndarray:
+    """Slope covariance of a *periodic* height field from its spectrum, optionally Gaussian-filtered.
+
+    ``sigma_um > 0`` applies the transfer function ``exp(-sigma^2 |k|^2 / 2)`` to the slopes: the
+    Gaussian-weighted least-squares plane slope equals the Gaussian-smoothed gradient (integrate
+    ``∫ w(u) u_x h(p+u) du`` by parts), so this is the independent reference for
+    :func:`precompute.microgeometry.filtered_slopes` away from the border.
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    ny, nx = h.shape
+    F = np.fft.fft2(h - h.mean())
+    kx = 2 * np.pi * np.fft.fftfreq(nx, pixel_um)
+    ky = 2 * np.pi * np.fft.fftfreq(ny, pixel_um)
+    KX, KY = np.meshgrid(kx, ky)
+    P = np.abs(F) ** 2 / (nx * ny) ** 2 * np.exp(-(sigma_um**2) * (KX**2 + KY**2))
+    return np.array([[np.sum(KX * KX * P), np.sum(KX * KY * P)], [np.sum(KX * KY * P), np.sum(KY * KY * P)]])
