@@ -1,0 +1,234 @@
+"""Small-scale BRDF models for the bi-scale pipeline (Wu et al. 2011, §3.5, §6, Table 3).
+
+Every model is isotropic, so a BRDF rotated to a facet normal n (the paper's
+f_r(n, ωi, ωo)) depends only on the three cosines  ci = n·ωi, co = n·ωo, cio = ωi·ωo;
+no local frames are needed.  A material is split into *lobes*: a scalar BRDF times an
+RGB colour, f_r,rgb = Σ_l colour_l · f_l(ci, co, cio).  Each lobe gets its own
+pre-rotated matrix M (eq. 9), so colours are exact for the analytic models
+(e.g. Schlick Fresnel F0 + (1-F0)(1-c)^5 = F0·[1-(1-c)^5] + 1·(1-c)^5 is two lobes).
+Tabulated RGB BRDFs use the paper's principal-direction trick (§3.7): one lobe whose
+colour is the first principal direction d of the RGB samples and whose scalar values are
+the samples projected onto d.
+
+Materials are dicts (ranges checked, ``ValueError`` otherwise):
+
+* ``{"model": "lambert", "albedo": rgb}``
+* ``{"model": "blinn_phong", "kd": rgb, "ks": rgb, "exponent": e}`` — normalised
+  specular lobe ks (e+8)/(8π) (n·h)^e
+* ``{"model": "cook_torrance", "alpha": a, "F0": rgb, "kd": rgb, "ks": s,
+  "distribution": "beckmann" | "ggx"}`` — D G F / (4 ci co); Beckmann uses the original
+  Cook-Torrance V-cavity G, GGX the height-correlated Smith G
+* ``{"model": "ward", "alpha": a, "rho_d": rgb, "rho_s": rgb}`` — isotropic Ward
+* ``{"model": "tabulated", "table": (n_theta, n_theta, n_phi, 3)}`` — samples at
+  θi, θo on linspace(0, π/2, n_theta) and φd = |φi-φo| on linspace(0, π, n_phi), trilinear
+
+rgb may be a scalar or a 3-sequence in [0, 1].  Units: BRDF values in 1/sr.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Lobe", "material_lobes", "eval_material", "MODELS"]
+
+MODELS = ("lambert", "blinn_phong", "cook_torrance", "ward", "tabulated")
+
+
+@dataclass(frozen=True)
+class Lobe:
+    """A scalar isotropic BRDF f(ci, co, cio) (1/sr) with an RGB colour; ``key`` identifies
+    the scalar function for caching M."""
+    key: str
+    f: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    colour: tuple
+
+    def cache_key(self):
+        return {"lobe": self.key}
+
+    def __call__(self, ci, co, cio):
+        return self.f(ci, co, cio)
+
+
+def _rgb(mat, name, default, lo=0.0, hi=1.0):
+    v = mat.get(name, default)
+    a = np.broadcast_to(np.asarray(v, dtype=np.float64), (3,)) if np.ndim(v) == 0 else np.asarray(v, np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or a.min() < lo or a.max() > hi:
+        raise ValueError(f"{mat.get('model')}.{name}: expected a number or 3 numbers in [{lo}, {hi}], got {v!r}")
+    return tuple(float(x) for x in a)
+
+
+def _num(mat, name, default, lo, hi):
+    v = mat.get(name, default)
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{mat.get('model')}.{name}: expected a number in [{lo}, {hi}], got {v!r}") from None
+    if not (np.isfinite(x) and lo <= x <= hi):
+        raise ValueError(f"{mat.get('model')}.{name}: expected a number in [{lo}, {hi}], got {v!r}")
+    return x
+
+
+def _half(ci, co, cio):
+    """n·h and ωi·h for h = (ωi+ωo)/|ωi+ωo| from the three cosines."""
+    L = np.sqrt(np.maximum(2.0 + 2.0 * cio, 1e-300))
+    nh = np.clip((ci + co) / L, 0.0, 1.0)
+    vh = np.clip(0.5 * L, 0.0, 1.0)
+    return nh, vh
+
+
+def _lambert(ci, co, cio):
+    return np.full(np.broadcast(ci, co, cio).shape, 1.0 / np.pi)
+
+
+def _blinn_phong(e):
+    def f(ci, co, cio):
+        nh, _ = _half(ci, co, cio)
+        return (e + 8.0) / (8.0 * np.pi) * nh ** e
+    return f
+
+
+def _microfacet(alpha, dist, fresnel_part):
+    a2 = alpha * alpha
+
+    def f(ci, co, cio):
+        ci_ = np.maximum(ci, 1e-12)
+        co_ = np.maximum(co, 1e-12)
+        nh, vh = _half(ci, co, cio)
+        c2 = np.maximum(nh * nh, 1e-150)
+        if dist == "beckmann":
+            D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+            vh_ = np.maximum(vh, 1e-12)
+            G = np.minimum(1.0, np.minimum(2 * nh * co_ / vh_, 2 * nh * ci_ / vh_))
+        else:
+            D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+            li = (-1 + np.sqrt(1 + a2 * (1 - ci_ * ci_) / (ci_ * ci_))) / 2
+            lo = (-1 + np.sqrt(1 + a2 * (1 - co_ * co_) / (co_ * co_))) / 2
+            G = 1.0 / (1.0 + li + lo)
+        x = (1.0 - vh) ** 5
+        F = (1.0 - x) if fresnel_part == "f0" else x if fresnel_part == "one" else np.ones_like(x)
+        return D * G * F / (4.0 * ci_ * co_)
+    return f
+
+
+def _ward(alpha):
+    a2 = alpha * alpha
+
+    def f(ci, co, cio):
+        nh, _ = _half(ci, co, cio)
+        c2 = np.maximum(nh * nh, 1e-150)
+        return np.exp(-(1.0 - c2) / (c2 * a2)) / (4.0 * np.pi * a2 * np.sqrt(np.maximum(ci * co, 1e-24)))
+    return f
+
+
+def _tabulated(tab):
+    """Trilinear interpolation of a scalar table over (θi, θo, φd)."""
+    nt, _, nphi = tab.shape
+
+    def f(ci, co, cio):
+        ci_ = np.clip(ci, 0.0, 1.0)
+        co_ = np.clip(co, 0.0, 1.0)
+        si, so = np.sqrt(1 - ci_ ** 2), np.sqrt(1 - co_ ** 2)
+        den = si * so
+        cphi = np.where(den > 1e-12, (cio - ci_ * co_) / np.where(den > 1e-12, den, 1.0), 1.0)
+        coords = [np.arccos(ci_) / (np.pi / 2) * (nt - 1), np.arccos(co_) / (np.pi / 2) * (nt - 1),
+                  np.arccos(np.clip(cphi, -1, 1)) / np.pi * (nphi - 1)]
+        sizes = (nt, nt, nphi)
+        i0, fr = [], []
+        for x, n in zip(coords, sizes):
+            x = np.clip(x, 0, n - 1)
+            k = np.minimum(np.floor(x).astype(np.int64), max(n - 2, 0))
+            i0.append(k)
+            fr.append(x - k)
+        out = 0.0
+        for a in (0, 1):
+            for b in (0, 1):
+                for c in (0, 1):
+                    w = (fr[0] if a else 1 - fr[0]) * (fr[1] if b else 1 - fr[1]) * (fr[2] if c else 1 - fr[2])
+                    ia = np.minimum(i0[0] + a, nt - 1)
+                    ib = np.minimum(i0[1] + b, nt - 1)
+                    ic = np.minimum(i0[2] + c, nphi - 1)
+                    out = out + w * tab[ia, ib, ic]
+        return out
+    return f
+
+
+def _digest(a):
+    return hashlib.sha256(np.ascontiguousarray(a, np.float64).tobytes()).hexdigest()[:16]
+
+
+def material_lobes(mat: dict) -> list[Lobe]:
+    """Split a material dict (see module docstring) into scalar lobes with RGB colours."""
+    if not isinstance(mat, dict) or "model" not in mat:
+        raise ValueError(f"materials: each material must be a dict with a 'model' in {MODELS}, got {mat!r}")
+    model = mat["model"]
+    lobes: list[Lobe] = []
+    if model == "lambert":
+        lobes.append(Lobe("lambert", _lambert, _rgb(mat, "albedo", 0.8)))
+    elif model == "blinn_phong":
+        e = _num(mat, "exponent", 20.0, 0.0, 1e4)
+        kd, ks = _rgb(mat, "kd", 0.5), _rgb(mat, "ks", 0.5)
+        if max(kd) > 0:
+            lobes.append(Lobe("lambert", _lambert, kd))
+        lobes.append(Lobe(f"blinn_phong:e={e!r}", _blinn_phong(e), ks))
+    elif model == "cook_torrance":
+        alpha = _num(mat, "alpha", 0.2, 1e-3, 1.0)
+        dist = mat.get("distribution", "beckmann")
+        if dist not in ("beckmann", "ggx"):
+            raise ValueError(f"cook_torrance.distribution: expected 'beckmann' or 'ggx', got {dist!r}")
+        F0 = _rgb(mat, "F0", 0.95)
+        ks = _num(mat, "ks", 1.0, 0.0, 1.0)
+        kd = _rgb(mat, "kd", 0.0)
+        if max(kd) > 0:
+            lobes.append(Lobe("lambert", _lambert, kd))
+        if min(F0) == max(F0):  # grey Fresnel: one lobe with the full Schlick term
+            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F0={F0[0]!r}",
+                              _scaled(_microfacet(alpha, dist, "f0"), _microfacet(alpha, dist, "one"), F0[0]),
+                              (ks, ks, ks)))
+        else:
+            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:f0part", _microfacet(alpha, dist, "f0"), tuple(ks * c for c in F0)))
+            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:onepart", _microfacet(alpha, dist, "one"), (ks, ks, ks)))
+    elif model == "ward":
+        alpha = _num(mat, "alpha", 0.3, 1e-3, 1.0)
+        rd, rs = _rgb(mat, "rho_d", 0.0), _rgb(mat, "rho_s", 0.5)
+        if max(rd) > 0:
+            lobes.append(Lobe("lambert", _lambert, rd))
+        lobes.append(Lobe(f"ward:a={alpha!r}", _ward(alpha), rs))
+    elif model == "tabulated":
+        tab = np.asarray(mat.get("table"), dtype=np.float64)
+        if tab.ndim != 4 or tab.shape[3] != 3 or tab.shape[0] != tab.shape[1] or tab.shape[0] < 2 or tab.shape[2] < 1:
+            raise ValueError(f"tabulated.table: expected shape (n_theta>=2, n_theta, n_phi>=1, 3), got {tab.shape}")
+        if not np.all(np.isfinite(tab)) or tab.min() < 0:
+            raise ValueError("tabulated.table: values must be finite and >= 0 (1/sr)")
+        flat = tab.reshape(-1, 3)
+        # §3.7: first principal direction of the RGB samples (uncentred, so that d spans the mean colour)
+        _, _, vt = np.linalg.svd(flat[:: max(1, len(flat) // 20000)], full_matrices=False)
+        d = vt[0] * (1.0 if vt[0].sum() >= 0 else -1.0)
+        proj = np.maximum(flat @ d, 0.0).reshape(tab.shape[:3])
+        lobes.append(Lobe(f"tabulated:{_digest(proj)}:{_digest(d)}", _tabulated(proj), tuple(float(x) for x in d)))
+    else:
+        raise ValueError(f"materials: unknown model {model!r}; expected one of {MODELS}")
+    return lobes
+
+
+def _scaled(f_f0, f_one, F0):
+    def f(ci, co, cio):
+        return F0 * f_f0(ci, co, cio) + f_one(ci, co, cio)
+    return f
+
+
+def eval_material(mat_or_lobes, n: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """RGB f_r(n, ωi, ωo) (1/sr), shape (..., 3); zero where ωi or ωo is below the facet
+    (the paper's clamped cosines).  n, wi, wo are unit vectors broadcastable to (..., 3)."""
+    lobes = material_lobes(mat_or_lobes) if isinstance(mat_or_lobes, dict) else mat_or_lobes
+    ci = np.sum(n * wi, -1)
+    co = np.sum(n * wo, -1)
+    cio = np.sum(wi * wo, -1)
+    ok = (ci > 0) & (co > 0)
+    out = 0.0
+    for lobe in lobes:
+        v = np.where(ok, lobe(np.where(ok, ci, 1.0), np.where(ok, co, 1.0), cio), 0.0)
+        out = out + v[..., None] * np.asarray(lobe.colour)
+    return np.broadcast_to(out, ok.shape + (3,)).copy() if np.ndim(out) else np.zeros(ok.shape + (3,))
