@@ -86,6 +86,7 @@ class ShaderSpec:
     coverage: np.ndarray = field(default_factory=lambda: np.zeros(0))  # c̄ on precompute.scratch_layers.COVERAGE_D
     coverage_dmax: float = 1.5
     use_base: bool = True
+    lobe_mode: str = "pick"                 # "pick": one hash-picked lobe (weight / probability); "all": sum
     name: str = "scratch_svbrdf"
 
 
@@ -113,7 +114,10 @@ def generate(spec: ShaderSpec) -> str:
     if layered:
         src.append('#include "node_voronoi.h"')
     src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}")
-    src.append(_LOBE_FUNC.replace("@LOSSLESS@", "1" if lossless else "0"))
+    if spec.lobe_mode not in ("pick", "all"):
+        raise ValueError(f"lobe_mode must be 'pick' or 'all', got {spec.lobe_mode!r}")
+    src.append(_LOBE_FUNC.replace("@LOSSLESS@", "1" if lossless else "0")
+               .replace("@LOBE_PICK@", "1" if spec.lobe_mode == "pick" else "0"))
     if layered:
         src.append(_DISK_OVERLAP)
     params = []
@@ -154,24 +158,65 @@ def generate(spec: ShaderSpec) -> str:
 # reference).  R_γ(θo) = (2|θo|/π)^γ (eq. 2).
 _LOBE_FUNC = r'''
 #define LOSSLESS @LOSSLESS@
+#define LOBE_PICK @LOBE_PICK@
+
+// eq. 2 per lobe: rho_m lobes get R_gamma(theta_o), rho_0 lobes 1 - R_gamma, R = (2|theta_o|/pi)^gamma
+float lobe_factor(float gam, float x, int use_r, int r_is_m)
+{
+    if (!use_r)
+        return 1.0;
+    float r = (x > 0.0) ? pow(x, gam) : 0.0;
+    return r_is_m ? r : 1.0 - r;
+}
+
+// A lobe: GGX with its normal tilted inside the n-v plane, tangent u (precompute.lobe_fit).
+// No horizon culling: the fit already accounts for what Cycles loses below the horizon, and
+// lobes centred near grazing carry real energy.
+closure color lobe(float tilt, float ay, vector u, vector v, normal n)
+{
+    return microfacet("ggx", normalize(cos(tilt) * n + sin(tilt) * v), u, AX, ay, 0.0, 0);
+}
 
 closure color lobe_set(int start[], float tilt[], float ay[], float w[], float gam[], int s,
-                       float theta_o, vector u, vector v, normal n, vector wo, int use_r, int r_is_m)
+                       float x, vector u, vector v, normal n, int use_r, int r_is_m)
 {
     closure color c = 0;
-    float x = 2.0 * abs(theta_o) / M_PI;
-    for (int j = start[s]; j < start[s + 1]; j++) {
-        // No horizon culling: the fit (precompute.lobe_fit) already accounts for what Cycles
-        // loses below the horizon, and lobes centred near grazing carry real energy.
-        normal Nl = normalize(cos(tilt[j]) * n + sin(tilt[j]) * v);
-        color wj = color(w[3 * j], w[3 * j + 1], w[3 * j + 2]);
-        if (use_r) {
-            float r = (x > 0.0) ? pow(x, gam[j]) : 0.0;
-            wj *= r_is_m ? r : (1.0 - r);
-        }
-        c += wj * microfacet("ggx", Nl, u, AX, ay[j], 0.0, 0);
-    }
+    for (int j = start[s]; j < start[s + 1]; j++)
+        c += lobe_factor(gam[j], x, use_r, r_is_m) * color(w[3 * j], w[3 * j + 1], w[3 * j + 2])
+             * lobe(tilt[j], ay[j], u, v, n);
     return c;
+}
+
+// Total (channel-mean) weight of a lobe set, for picking one lobe with probability ~ weight.
+float set_weight(int start[], float w[], float gam[], int s, float x, int use_r, int r_is_m)
+{
+    float total = 0.0;
+    for (int j = start[s]; j < start[s + 1]; j++)
+        total += lobe_factor(gam[j], x, use_r, r_is_m) * (w[3 * j] + w[3 * j + 1] + w[3 * j + 2]);
+    return total;
+}
+
+// The lobe at cumulative weight ``target`` (< the set's total), weighted by 1 / probability.
+closure color set_pick(int start[], float tilt[], float ay[], float w[], float gam[], int s, float x,
+                       int use_r, int r_is_m, float target, float total, vector u, vector v, normal n)
+{
+    float acc = 0.0;
+    int last = -1;
+    for (int j = start[s]; j < start[s + 1]; j++) {
+        float lj = lobe_factor(gam[j], x, use_r, r_is_m) * (w[3 * j] + w[3 * j + 1] + w[3 * j + 2]);
+        if (lj <= 0.0)
+            continue;
+        last = j;
+        acc += lj;
+        if (target < acc)
+            break;
+    }
+    closure color none = 0;
+    if (last < 0)
+        return none;
+    color wj = lobe_factor(gam[last], x, use_r, r_is_m) * color(w[3 * last], w[3 * last + 1], w[3 * last + 2]);
+    float lum = wj[0] + wj[1] + wj[2];
+    return (total / lum) * wj * lobe(tilt[last], ay[last], u, v, n);
 }
 '''
 
@@ -203,6 +248,7 @@ _FRAME = r'''
     // Two decorrelated per-sample random numbers (OSL has no sample index; P jitters per sample).
     float h_slice = hashnoise(P, dot(wo, vector(12.9898, 78.233, 37.719)));
     float h_layer = hashnoise(P, dot(wo, vector(93.989, 67.345, 24.113)) + 17.0);
+    float h_lobe = hashnoise(P, dot(wo, vector(39.346, 11.135, 83.155)) + 31.0);
 '''
 
 _ALPHA = r'''
@@ -269,16 +315,31 @@ _LAYER_LOBES = r'''
         vector v = cross(n, u);
         float theta_o = asin(clamp(dot(wo, u), -1.0, 1.0));
         float phi_o = atan2(dot(wo, v), dot(wo, n));
-        // stochastic linear interpolation between the two nearest φo slices
+        float x = 2.0 * abs(theta_o) / M_PI;
+        // stochastic linear interpolation between the two nearest phi_o slices
         float xs = (phi_o + M_PI_2) / M_PI * MS - 0.5;
         int s = (int)floor(xs);
         if (h_slice < xs - s) s += 1;
         s = clamp(s, 0, MS - 1);
+#if LOBE_PICK
 #if LOSSLESS
-        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, theta_o, u, v, n, wo, 0, 1);
+        float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 0, 1);
+        closure color rho = set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 0, 1, h_lobe * wm, wm, u, v, n);
 #else
-        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, theta_o, u, v, n, wo, 1, 1)
-                          + lobe_set(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, theta_o, u, v, n, wo, 1, 0);
+        float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 1, 1);
+        float w0 = set_weight(L0_START, L0_W, L0_GAMMA, s, x, 1, 0);
+        float target = h_lobe * (wm + w0);
+        closure color rho = (target < wm)
+            ? set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n)
+            : set_pick(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
+#endif
+#else
+#if LOSSLESS
+        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
+#else
+        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 1, 1)
+                          + lobe_set(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, u, v, n, 1, 0);
+#endif
 #endif
 '''
 

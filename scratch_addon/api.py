@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import materials, presets, render as _render
+from . import materials, presets, render as _render, scratch_material
 
 
 def preset_names() -> list[str]:
@@ -23,7 +23,41 @@ def make_material(preset: str, **overrides) -> bpy.types.Material:
     params = {**p.params, **overrides}
     if p.kind == "brushed":
         return materials.make_brushed_material(name=f"Scratch {p.name}", **params)
-    raise ValueError(f"preset {preset!r}: unknown kind {p.kind!r}")  # pragma: no cover - table is internal
+    return make_scratched_material(preset, **overrides)
+
+
+def make_scratched_material(preset: str | None = None, *, name: str | None = None, material=None,
+                            progress=None, **params) -> bpy.types.Material:
+    """The scratch SV-BRDF material of Raymond et al. 2016 (OSL; Cycles CPU/OptiX).
+
+    ``preset``: a scratch preset name (``preset_names()``) whose parameters ``params`` override.
+    ``params``:
+      profile     a ``precompute.profiles`` profile or ``(family, value)``, e.g. ``("quartic", 0.3)``
+      fresnel     None (lossless mirror), a metal name ("iron", "gold", "copper", "aluminium",
+                  "silver"), ``("schlick", ior)``, ``("conductor", n, k)`` or a ``precompute.fresnel`` model
+      base        "mirror" (perfect mirror of the same Fresnel), "none", "diffuse", "glossy",
+                  "principled", or a dict ``{"type": ..., "color": ..., "roughness": ...}``
+      layers      None (dense scratches everywhere), a layer count, a dict of
+                  ``precompute.scratch_layers.LayerParams`` fields (n_layers, theta_deg, length,
+                  width, density, seed; lengths in UV units) or a LayerParams
+      lobes       K, at most this many tilted GGX lobes per φo slice (1..16, default 8)
+      mode        "lobes" (the product path, light sampling kept) or "reference" (validation)
+      resolution  scratch-BRDF table size M (64/128/256/512), slices φo slices in the shader
+      tint        RGB multiplier of the scratch reflectance; diffuse: None, RGB or "wood"
+    ``material``: rebuild this material in place instead of creating one.  Bad values raise
+    ``ValueError`` naming the parameter and its allowed range.
+    """
+    merged = {}
+    if preset is not None:
+        p = presets.get(preset)
+        if p.kind != "scratch":
+            raise ValueError(f"preset {preset!r} is a {p.kind} preset, not a scratch preset")
+        merged.update(p.params)
+    merged.update(params)
+    spec = scratch_material.validate(**merged)
+    if material is None:
+        material = materials.new_material(name or f"Scratched {preset or 'material'}")
+    return scratch_material.build(material, spec, progress=progress)
 
 
 def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:
@@ -32,6 +66,8 @@ def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:
     presets.get(preset)  # validate before wiping the file
     scene = _render.reset_scene()
     material = make_material(preset, **overrides)
+    if presets.get(preset).kind == "scratch":
+        scene.cycles.shading_system = True
     _render.studio_world(scene, strength=1.0)
     _render.add_torus(scene, material=material)
     _render.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)
@@ -45,6 +81,12 @@ def render(out: str, samples: int = 32, res=(320, 240), seed: int = 0, osl: bool
     w = int(materials.check_range("res width", res[0], 4, 16384))
     h = int(materials.check_range("res height", res[1], 4, 16384))
     scene = bpy.context.scene
+    osl = bool(osl or scene.cycles.shading_system or _uses_osl(scene))
     _render.configure_cycles(scene, samples=samples, res=(w, h), seed=seed, osl=osl)
     scene.view_settings.view_transform = "AgX" if out.lower().endswith(".png") else "Standard"
     return _render.render_to_file(scene, out)
+
+
+def _uses_osl(scene) -> bool:
+    """True if a material in the scene has an OSL script node (the scratch materials do)."""
+    return any(n.bl_idname == "ShaderNodeScript" for m in bpy.data.materials if m.node_tree for n in m.node_tree.nodes)

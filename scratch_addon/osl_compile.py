@@ -7,9 +7,11 @@ site-packages`` without putting it on ``sys.path``: ``ensure_oslquery()`` adds i
 """
 from __future__ import annotations
 
+import contextlib
 import glob
 import os
 import sys
+import tempfile
 
 import bpy
 
@@ -38,6 +40,31 @@ def ensure_oslquery() -> None:
     raise OSLCompileError("cannot find the 'oslquery' module shipped with Blender; OSL script nodes cannot be compiled")
 
 
+@contextlib.contextmanager
+def _captured_stderr():
+    """Capture the OSL compiler's messages (written by C++ straight to file descriptor 2)."""
+    lines: list[str] = []
+    try:
+        saved = os.dup(2)
+    except OSError:  # no usable stderr: compile without capturing
+        yield lambda: lines
+        return
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        sys.stderr.flush()
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lambda: lines
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode(errors="replace")
+            lines.extend(text.splitlines())
+            if text:
+                sys.stderr.write(text)  # still show it
+
+
 def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
     """Compile ``node`` (INTERNAL or EXTERNAL) and update its sockets; raise OSLCompileError on failure."""
     ensure_oslquery()
@@ -49,9 +76,11 @@ def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
         if "ERROR" in kind:
             errors.append(message)
 
-    ok = cycles.osl.update_script_node(node, report)
+    with _captured_stderr() as captured:
+        ok = cycles.osl.update_script_node(node, report)
     if errors or ok is False:
-        raise OSLCompileError(f"OSL compile of node {node.name!r} failed:\n" + "\n".join(errors))
+        details = [ln for ln in captured() if "error" in ln.lower()]
+        raise OSLCompileError(f"OSL compile of node {node.name!r} failed:\n" + "\n".join(details + errors))
 
 
 def script_node_from_source(tree: bpy.types.NodeTree, name: str, source: str) -> bpy.types.ShaderNodeScript:

@@ -40,6 +40,7 @@ class ScratchParams:
     resolution: int
     slices: int
     tint: tuple
+    diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
 
 
 def _as_layers(layers):
@@ -68,18 +69,35 @@ def _as_base(base) -> dict:
     return out
 
 
+def _as_profile(profile):
+    if isinstance(profile, (tuple, list)) and len(profile) == 2 and isinstance(profile[0], str):
+        family = getattr(profiles, profile[0], None)
+        if family is None or profile[0] not in ("quartic", "v_groove", "circular"):
+            raise ValueError(f"profile family must be quartic, v_groove or circular; got {profile[0]!r}")
+        return family(profile[1])
+    return profile
+
+
+def _as_fresnel(fresnel):
+    if fresnel is None or isinstance(fresnel, fresnel_mod.Fresnel):
+        return fresnel
+    if isinstance(fresnel, str):
+        return fresnel_mod.conductor_preset(fresnel)
+    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 2 and fresnel[0] == "schlick":
+        return fresnel_mod.schlick(fresnel[1])
+    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 3 and fresnel[0] == "conductor":
+        return fresnel_mod.conductor(fresnel[1], fresnel[2])
+    raise ValueError("fresnel must be None (lossless), a metal name, ('schlick', ior), ('conductor', n, k) "
+                     f"or a precompute.fresnel model; got {fresnel!r}")
+
+
 def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
-             slices=64, tint=(1.0, 1.0, 1.0)) -> ScratchParams:
+             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None) -> ScratchParams:
     """Check every parameter; raise ValueError naming the parameter and its allowed range."""
-    if profile is None:
-        profile = profiles.quartic(0.2)
+    profile = profiles.quartic(0.2) if profile is None else _as_profile(profile)
     if not isinstance(profile, profiles.Profile):
         raise ValueError(f"profile must be a precompute.profiles profile (quartic, v_groove, tabulated...); got {profile!r}")
-    if fresnel is not None and not isinstance(fresnel, fresnel_mod.Fresnel):
-        if isinstance(fresnel, str):
-            fresnel = fresnel_mod.conductor_preset(fresnel)
-        else:
-            raise ValueError(f"fresnel must be None (lossless), a metal name or a precompute.fresnel model; got {fresnel!r}")
+    fresnel = _as_fresnel(fresnel)
     if isinstance(lobes, bool) or not isinstance(lobes, int) or not 1 <= lobes <= 16:
         raise ValueError(f"lobes must be an integer in [1, 16], got {lobes!r}")
     if mode not in MODES:
@@ -89,7 +107,10 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
     if slices not in (16, 32, 64, 128) or slices > resolution:
         raise ValueError(f"slices must be one of 16, 32, 64, 128 and <= resolution; got {slices!r}")
     rgba = materials.check_color("tint", tint)
-    return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices, rgba[:3])
+    if diffuse is not None and diffuse != "wood":
+        diffuse = materials.check_color("diffuse", diffuse)[:3]
+    return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices,
+                         rgba[:3], diffuse)
 
 
 def _check_uvs_for(obj_meshes) -> None:
@@ -179,6 +200,22 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None) -> str:
     return osl_gen.generate(spec)
 
 
+def _wood_texture(tree, socket) -> None:
+    """Procedural wood rings (Wave texture through a brown colour ramp) into ``socket``."""
+    wave = tree.nodes.new("ShaderNodeTexWave")
+    wave.wave_type, wave.bands_direction = "RINGS", "Z"
+    wave.inputs["Scale"].default_value = 2.0
+    wave.inputs["Distortion"].default_value = 6.0
+    wave.inputs["Detail"].default_value = 3.0
+    wave.location = (-400, -450)
+    ramp = tree.nodes.new("ShaderNodeValToRGB")
+    ramp.location = (-150, -450)
+    ramp.color_ramp.elements[0].color = (0.20, 0.08, 0.03, 1)
+    ramp.color_ramp.elements[1].color = (0.45, 0.22, 0.08, 1)
+    tree.links.new(wave.outputs["Fac"], ramp.inputs["Fac"])
+    tree.links.new(ramp.outputs["Color"], socket)
+
+
 def _jsonable(v):
     return v.tolist() if hasattr(v, "tolist") else float(v)
 
@@ -212,7 +249,20 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None) ->
     if base is not None and "Base" in script.inputs:
         base.location = (-200, -250)
         tree.links.new(base.outputs[0], script.inputs["Base"])
-    tree.links.new(script.outputs["BSDF"], out.inputs["Surface"])
+    surface = script.outputs["BSDF"]
+    if params.diffuse is not None:  # a Lambertian term common to scratches and base (Fig. 12c, d)
+        diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        diff.location = (200, -300)
+        if params.diffuse == "wood":
+            _wood_texture(tree, diff.inputs["Color"])
+        else:
+            diff.inputs["Color"].default_value = (*params.diffuse, 1.0)
+        add = tree.nodes.new("ShaderNodeAddShader")
+        add.location = (380, -100)
+        tree.links.new(surface, add.inputs[0])
+        tree.links.new(diff.outputs["BSDF"], add.inputs[1])
+        surface = add.outputs["Shader"]
+    tree.links.new(surface, out.inputs["Surface"])
     if hasattr(material, "use_bump_map_correction"):
         material.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
     material["scratch_addon_kind"] = "scratch_svbrdf"
@@ -222,6 +272,7 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None) ->
         "profile": params.profile.cache_key(), "fresnel": None if params.fresnel is None else params.fresnel.cache_key(),
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
-        "resolution": params.resolution, "slices": params.slices}, default=_jsonable)
+        "resolution": params.resolution, "slices": params.slices, "tint": list(params.tint),
+        "diffuse": params.diffuse}, default=_jsonable)
     step(1.0)
     return material
