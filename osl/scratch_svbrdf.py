@@ -87,6 +87,7 @@ class ShaderSpec:
     coverage_dmax: float = 1.5
     use_base: bool = True
     lobe_mode: str = "pick"                 # "pick": one hash-picked lobe (weight / probability); "all": sum
+    alpha_mode: str = "footprint"           # "footprint": eq. 3 over the ray footprint; "mean": α_k = c̄(d) (tests)
     name: str = "scratch_svbrdf"
 
 
@@ -116,8 +117,9 @@ def generate(spec: ShaderSpec) -> str:
     src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}")
     if spec.lobe_mode not in ("pick", "all"):
         raise ValueError(f"lobe_mode must be 'pick' or 'all', got {spec.lobe_mode!r}")
-    src.append(_LOBE_FUNC.replace("@LOSSLESS@", "1" if lossless else "0")
-               .replace("@LOBE_PICK@", "1" if spec.lobe_mode == "pick" else "0"))
+    layer_lobes = _LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)]
+    funcs = _LOBE_FUNC_ALL if spec.lobe_mode == "all" else _LOBE_FUNC_PICK
+    src.append(_LOBE_COMMON + funcs)
     if layered:
         src.append(_DISK_OVERLAP)
     params = []
@@ -141,13 +143,16 @@ def generate(spec: ShaderSpec) -> str:
         body.append(f"    float COV_DMAX = {spec.coverage_dmax:.9g};")
     body.append(_FRAME)
     if layered:
-        body.append(_ALPHA.replace("@CULL@", f"{ALPHA_CULL:.9g}"))
-        body.append(_COMBINE_SUMMED if summed else _COMBINE_PICKED)
+        if spec.alpha_mode not in ("footprint", "mean"):
+            raise ValueError(f"alpha_mode must be 'footprint' or 'mean', got {spec.alpha_mode!r}")
+        alpha = _ALPHA if spec.alpha_mode == "footprint" else _ALPHA_MEAN
+        body.append(alpha.replace("@CULL@", f"{ALPHA_CULL:.9g}"))
+        body.append((_COMBINE_SUMMED if summed else _COMBINE_PICKED).replace("@LAYER_LOBES@", layer_lobes))
         if use_base:
             body.append("    BSDF += max(1.0 - alpha_sum, 0.0) * Base;")
     else:
         body.append("    // dense layer: scratches everywhere (Fig. 1a)\n    Alpha = 1.0;\n    float THETA_K[1] = {0.0};\n    {\n    int k = 0;"
-                    + _LAYER_LOBES + "    BSDF = Tint * rho;\n    }")
+                    + layer_lobes + "    BSDF = Tint * rho;\n    }")
     src.append("\n".join(body))
     src.append("}")
     return "\n".join(src) + "\n"
@@ -156,9 +161,7 @@ def generate(spec: ShaderSpec) -> str:
 # --- OSL snippets -------------------------------------------------------------------------------
 # The lobe sum lives in a macro-like function taking the lobe arrays by name (OSL passes arrays by
 # reference).  R_γ(θo) = (2|θo|/π)^γ (eq. 2).
-_LOBE_FUNC = r'''
-#define LOSSLESS @LOSSLESS@
-#define LOBE_PICK @LOBE_PICK@
+_LOBE_COMMON = r'''
 
 // eq. 2 per lobe: rho_m lobes get R_gamma(theta_o), rho_0 lobes 1 - R_gamma, R = (2|theta_o|/pi)^gamma
 float lobe_factor(float gam, float x, int use_r, int r_is_m)
@@ -177,6 +180,9 @@ closure color lobe(float tilt, float ay, vector u, vector v, normal n)
     return microfacet("ggx", normalize(cos(tilt) * n + sin(tilt) * v), u, AX, ay, 0.0, 0);
 }
 
+'''
+
+_LOBE_FUNC_ALL = r'''
 closure color lobe_set(int start[], float tilt[], float ay[], float w[], float gam[], int s,
                        float x, vector u, vector v, normal n, int use_r, int r_is_m)
 {
@@ -187,6 +193,9 @@ closure color lobe_set(int start[], float tilt[], float ay[], float w[], float g
     return c;
 }
 
+'''
+
+_LOBE_FUNC_PICK = r'''
 // Total (channel-mean) weight of a lobe set, for picking one lobe with probability ~ weight.
 float set_weight(int start[], float w[], float gam[], int s, float x, int use_r, int r_is_m)
 {
@@ -309,7 +318,22 @@ _ALPHA = r'''
     Alpha = alpha_sum;
 '''
 
-_LAYER_LOBES = r'''
+_ALPHA_MEAN = r'''
+    // alpha_mode "mean": every layer at its mean coverage c̄(d) (the far-field limit of eq. 3)
+    float d = clamp(Density, 0.0, 1.0);
+    float x_d = d / COV_DMAX * (arraylength(COV) - 1);
+    int i_d = min((int)floor(x_d), arraylength(COV) - 2);
+    float cbar = mix(COV[i_d], COV[i_d + 1], x_d - i_d);
+    float alpha[NL];
+    float alpha_sum = 0.0;
+    for (int k = 0; k < NL; k++) {
+        alpha[k] = cbar;
+        alpha_sum += cbar;
+    }
+    Alpha = alpha_sum;
+'''
+
+_LAYER_HEAD = r'''
         float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
         vector u = ck * t + sk * b;
         vector v = cross(n, u);
@@ -321,34 +345,39 @@ _LAYER_LOBES = r'''
         int s = (int)floor(xs);
         if (h_slice < xs - s) s += 1;
         s = clamp(s, 0, MS - 1);
-#if LOBE_PICK
-#if LOSSLESS
+'''
+
+_RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
+    ("pick", True): r'''
         float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 0, 1);
         closure color rho = set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 0, 1, h_lobe * wm, wm, u, v, n);
-#else
+''',
+    ("pick", False): r'''
         float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 1, 1);
         float w0 = set_weight(L0_START, L0_W, L0_GAMMA, s, x, 1, 0);
         float target = h_lobe * (wm + w0);
-        closure color rho = (target < wm)
-            ? set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n)
-            : set_pick(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
-#endif
-#else
-#if LOSSLESS
+        closure color rho = 0;
+        if (target < wm)
+            rho = set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n);
+        else
+            rho = set_pick(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
+''',
+    ("all", True): r'''
         closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
-#else
+''',
+    ("all", False): r'''
         closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 1, 1)
                           + lobe_set(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, u, v, n, 1, 0);
-#endif
-#endif
-'''
+''',
+}
+
 
 _COMBINE_SUMMED = r'''
     // eq. 4: all layers summed
     float norm = 1.0 / max(alpha_sum, 1.0);
     for (int k = 0; k < NL; k++) {
         if (alpha[k] <= 0.0) continue;
-''' + _LAYER_LOBES + r'''
+@LAYER_LOBES@
         BSDF += (alpha[k] * norm) * Tint * rho;
     }
 '''
@@ -362,7 +391,129 @@ _COMBINE_PICKED = r'''
             acc += alpha[j];
             if (h_layer * alpha_sum < acc) { k = j; break; }
         }
-''' + _LAYER_LOBES + r'''
+@LAYER_LOBES@
         BSDF += min(alpha_sum, 1.0) * Tint * rho;
+    }
+'''
+
+
+# --- reference mode ------------------------------------------------------------------------------
+@dataclass
+class ReferenceSpec:
+    """Exact-table reference (validation only): φi importance-sampled from the ρm slice (§5.1) and
+    traced with ``ray_portal_bsdf`` (no light sampling).  Tables are [M, M] / [M, M, 3] float arrays
+    (``precompute.scratch_brdf.ScratchBRDF``); layers as in ``ShaderSpec``."""
+
+    rho_m: np.ndarray
+    rho0: np.ndarray
+    gamma: np.ndarray
+    layers: object | None = None
+    theta_k: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    xi_k: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    coverage: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    coverage_dmax: float = 1.5
+    use_base: bool = True
+    name: str = "scratch_reference"
+
+    #: Largest table compiled into the source (5 M² floats; larger tables make OSL compile slowly).
+    MAX_M = 128
+
+
+def generate_reference(spec: ReferenceSpec) -> str:
+    """OSL source of the exact-table reference shader (eq. 2 and eq. 5 by importance sampling)."""
+    rho_m = np.asarray(spec.rho_m, np.float64)
+    rho_m = rho_m.mean(-1) if rho_m.ndim == 3 else rho_m
+    M = rho_m.shape[0]
+    if M > ReferenceSpec.MAX_M:
+        raise ValueError(f"reference mode: resolution must be <= {ReferenceSpec.MAX_M}, got {M}")
+    rho0 = np.asarray(spec.rho0, np.float64)
+    rho0 = np.repeat(rho0[..., None], 3, -1) if rho0.ndim == 2 else rho0
+    gamma = np.asarray(spec.gamma, np.float64)
+    gamma = gamma.mean(-1) if gamma.ndim == 3 else gamma
+    edges = -np.pi / 2 + np.arange(M + 1) * np.pi / M
+    C = np.diff(np.sin(edges))                          # ∫cos over each φi bin
+    mass = rho_m * C[None, :]
+    total = mass.sum(1)                                 # albedo of each φo slice (white furnace)
+    cdf = np.concatenate([np.zeros((M, 1)), np.cumsum(mass, 1)], 1) / np.where(total > 0, total, 1.0)[:, None]
+    layered = spec.layers is not None
+    use_base = spec.use_base and layered
+    src = ["// Generated by osl/scratch_svbrdf.py (reference mode) -- validation only.", '#include "stdcycles.h"']
+    if layered:
+        src.append('#include "node_voronoi.h"')
+        src.append(_DISK_OVERLAP)
+    src.append(f"#define M {M}\n#define NL {spec.layers.n_layers if layered else 1}")
+    params = []
+    if layered:
+        lp = spec.layers
+        params += ["    point UV = 0,", f"    float Length = {lp.length:.9g},", f"    float Width = {lp.width:.9g},",
+                   f"    float Density = {lp.density:.9g},"]
+    if use_base:
+        params.append("    closure color Base = 0,")
+    params += ["    vector Tangent = 0,", "    color Tint = color(1.0),", "    output closure color BSDF = 0,",
+               "    output float Alpha = 0)"]
+    src.append(f"shader {spec.name}(\n" + "\n".join(params) + "\n{")
+    body = [const_array("RHO_M", rho_m.ravel()), const_array("RHO_0", rho0.ravel()), const_array("GAM", gamma.ravel()),
+            const_array("CDF", cdf.ravel()), const_array("TOTAL", total), const_array("EDGE_SIN", np.sin(edges))]
+    if layered:
+        body.append(const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
+                    + const_array("COV", spec.coverage))
+        body.append(f"    float COV_DMAX = {spec.coverage_dmax:.9g};")
+    body.append(_FRAME)
+    body.append("    float h_phi = hashnoise(P, dot(wo, vector(71.17, 5.31, 47.77)) + 47.0);")
+    if layered:
+        body.append(_ALPHA.replace("@CULL@", f"{ALPHA_CULL:.9g}"))
+        body.append(_REF_PICK_LAYER)
+    else:
+        body.append("    Alpha = 1.0;\n    float THETA_K[1] = {0.0};\n    int k = 0;\n    float scale = 1.0;")
+    body.append(_REF_SAMPLE)
+    if use_base:
+        body.append("    BSDF += max(1.0 - alpha_sum, 0.0) * Base;")
+    src.append("\n".join(body))
+    src.append("}")
+    return "\n".join(src) + "\n"
+
+
+_REF_PICK_LAYER = r'''
+    int k = NL - 1;
+    float scale = min(alpha_sum, 1.0);
+    {
+        float acc = 0.0;
+        for (int j = 0; j < NL; j++) {
+            acc += alpha[j];
+            if (h_layer * alpha_sum < acc) { k = j; break; }
+        }
+    }
+    if (alpha_sum <= 0.0) scale = 0.0;
+'''
+
+_REF_SAMPLE = r'''
+    if (scale > 0.0) {
+        float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
+        vector u = ck * t + sk * b;
+        vector v = cross(n, u);
+        float theta_o = asin(clamp(dot(wo, u), -1.0, 1.0));
+        float phi_o = atan2(dot(wo, v), dot(wo, n));
+        int o = clamp((int)floor((phi_o + M_PI_2) / M_PI * M), 0, M - 1);
+        if (TOTAL[o] > 0.0) {
+            // inverse CDF over phi_i bins (rho_m cos, Raymond et al. 2016 §5.1), cos-distributed inside the bin
+            int i = 0;
+            for (int j = 0; j < M; j++) {
+                if (h_phi < CDF[o * (M + 1) + j + 1]) { i = j; break; }
+                i = j;
+            }
+            float lo = CDF[o * (M + 1) + i], hi = CDF[o * (M + 1) + i + 1];
+            float f = (hi > lo) ? (h_phi - lo) / (hi - lo) : 0.5;
+            float s_phi = mix(EDGE_SIN[i], EDGE_SIN[i + 1], clamp(f, 0.0, 1.0));
+            float phi_i = asin(clamp(s_phi, -1.0, 1.0));
+            float rm = RHO_M[o * M + i];
+            // eq. 2 with gamma of this bin; weight = rho_s cos / pdf = (rho_s / rho_m) * TOTAL[o]
+            float x = 2.0 * abs(theta_o) / M_PI;
+            float r = (x > 0.0) ? pow(x, GAM[o * M + i]) : 0.0;
+            color r0 = color(RHO_0[3 * (o * M + i)], RHO_0[3 * (o * M + i) + 1], RHO_0[3 * (o * M + i) + 2]);
+            color rho_s = r * rm + (1.0 - r) * r0;
+            color weight = (rm > 0.0) ? rho_s / rm * TOTAL[o] : color(0.0);
+            vector wi = -sin(theta_o) * u + cos(theta_o) * (sin(phi_i) * v + cos(phi_i) * n);
+            BSDF = scale * Tint * weight * ray_portal_bsdf(P, normalize(wi));
+        }
     }
 '''

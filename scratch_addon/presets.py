@@ -60,7 +60,7 @@ _add(Preset("fig14b_steep", "scratch", "Fig. 14b / Table 1: steep profile, scrat
             dict(profile=("quartic", 0.6), fresnel="iron", layers=_layers(16, 360, 0.02, 1e-5, 0.2), base="mirror")))
 #: The README demo: visible glint lines on the demo torus (UV range 1 around the ring).
 _add(Preset("demo", "scratch", "README demo: scratched aluminium, 16 layers sized for the demo torus",
-            dict(profile=("quartic", 0.3), fresnel="aluminium", layers=_layers(16, 360, 0.15, 2e-3, 0.12),
+            dict(profile=("quartic", 0.3), fresnel="aluminium", layers=_layers(16, 360, 1.0, 0.01, 0.05),
                  base="mirror")))
 
 

@@ -102,6 +102,9 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError(f"lobes must be an integer in [1, 16], got {lobes!r}")
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if mode == "reference" and resolution > osl_gen.ReferenceSpec.MAX_M:
+        raise ValueError(f"resolution must be <= {osl_gen.ReferenceSpec.MAX_M} in reference mode "
+                         f"(the exact table is compiled into the shader); got {resolution}")
     if resolution not in (64, 128, 256, 512):
         raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
     if slices not in (16, 32, 64, 128) or slices > resolution:
@@ -174,10 +177,17 @@ def _base_node(tree, params: ScratchParams):
     return node
 
 
-def shader_source(params: ScratchParams, brdf=None, lobe_data=None) -> str:
+def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_options) -> str:
     """Generate the specialised OSL source for ``params`` (tables computed or taken from the cache)."""
     if brdf is None:
         brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    layers = params.layers
+    theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
+    layer_kw = {} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=scratch_layers.coverage_table()[1])
+    if params.mode == "reference":
+        return osl_gen.generate_reference(osl_gen.ReferenceSpec(
+            rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,
+            use_base=params.base["type"] != "none", **layer_kw))
     if lobe_data is None:
         lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
 
@@ -190,13 +200,9 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None) -> str:
         t.gamma = entry["gamma"][keep]
         return t
 
-    layers = params.layers
-    theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
     spec = osl_gen.ShaderSpec(
         lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]), alpha_x=lobe_data["alpha_x"],
-        layers=layers, use_base=params.base["type"] != "none",
-        **({} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=scratch_layers.coverage_table()[1])),
-    )
+        layers=layers, use_base=params.base["type"] != "none", **layer_kw, **spec_options)
     return osl_gen.generate(spec)
 
 
@@ -220,15 +226,17 @@ def _jsonable(v):
     return v.tolist() if hasattr(v, "tolist") else float(v)
 
 
-def build(material: bpy.types.Material, params: ScratchParams, progress=None) -> bpy.types.Material:
+def build(material: bpy.types.Material, params: ScratchParams, progress=None, **spec_options) -> bpy.types.Material:
     """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way."""
     step = progress or (lambda _f: None)
     step(0.05)
     brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
     step(0.4)
-    lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
+    lobe_data = None
+    if params.mode == "lobes":
+        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
     step(0.8)
-    src = shader_source(params, brdf, lobe_data)
+    src = shader_source(params, brdf, lobe_data, **spec_options)
     tree = material.node_tree
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
@@ -263,11 +271,11 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None) ->
         tree.links.new(diff.outputs["BSDF"], add.inputs[1])
         surface = add.outputs["Shader"]
     tree.links.new(surface, out.inputs["Surface"])
-    if hasattr(material, "use_bump_map_correction"):
-        material.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
+    material.cycles.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
     material["scratch_addon_kind"] = "scratch_svbrdf"
-    material["scratch_addon_fit_error"] = float(max(lobe_data["m"]["error"].max(),
-                                                   0.0 if lobe_data["0"] is None else lobe_data["0"]["error"].max()))
+    if lobe_data is not None:
+        material["scratch_addon_fit_error"] = float(max(
+            lobe_data["m"]["error"].max(), 0.0 if lobe_data["0"] is None else lobe_data["0"]["error"].max()))
     material["scratch_addon_params"] = json.dumps({
         "profile": params.profile.cache_key(), "fresnel": None if params.fresnel is None else params.fresnel.cache_key(),
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
