@@ -7,17 +7,19 @@ from __future__ import annotations
 
 import bpy
 
-from . import api, materials, operators, osl_compile, panels, preferences, presets, render  # noqa: F401
+from . import api, materials, operators, osl_compile, panels, preferences, presets, properties, render  # noqa: F401
 
-_classes = (*preferences.classes, *operators.classes, *panels.classes)
+_classes = (*preferences.classes, *properties.classes, *operators.classes, *panels.classes)
 
 
 def register() -> None:
     for cls in _classes:
         bpy.utils.register_class(cls)
+    properties.register_pointer()
     preferences.apply_cache_dir()
 
 
 def unregister() -> None:
+    properties.unregister_pointer()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

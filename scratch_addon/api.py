@@ -57,7 +57,10 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
     spec = scratch_material.validate(**merged)
     if material is None:
         material = materials.new_material(name or f"Scratched {preset or 'material'}")
-    return scratch_material.build(material, spec, progress=progress)
+    scratch_material.build(material, spec, progress=progress)
+    if preset is not None and hasattr(material, "scratch"):  # add-on registered: keep the UI in sync
+        material.scratch.from_params(merged)
+    return material
 
 
 def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:

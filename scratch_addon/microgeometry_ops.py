@@ -101,7 +101,11 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
         report(0.9)
         return out
 
-    result = dict(cache.cached_arrays("microgeometry_material", version, inputs, compute))
+    result = {k: np.array(v, dtype=np.float64) for k, v in
+              cache.cached_arrays("microgeometry_material", version, inputs, compute).items()}
+    for v in result.values():  # float32 storage can round a clamped bound just outside the valid range
+        v[..., :2] = np.clip(v[..., :2], ell.ALPHA_MIN, ell.ALPHA_MAX)
+        v[..., 2:4] = np.clip(v[..., 2:4], -ell.THETA_XY_MAX, ell.THETA_XY_MAX)
     result["cached"] = state["cached"]
     report(1.0)
     return result
@@ -235,7 +239,8 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
                                            description="Effective Kirchhoff wavelength lambda_q (eq. 5-6)")
     ndf_kind: bpy.props.EnumProperty(name="NDF", items=NDF_KINDS, default="FILTERED")
     synthesize: bpy.props.BoolProperty(name="Synthesise Texture", default=False,
-                                       description="Spatially varying ellipsoid NDF texture (§9) instead of the average NDF")
+                                       description="Spatially varying ellipsoid NDF texture (§9) "
+                                                   "instead of the average NDF")
     texture_size: bpy.props.IntProperty(name="Texture Size", default=256, min=8, max=4096)
     texel_um: bpy.props.FloatProperty(name="Texel (µm)", default=63.5, min=1e-3, max=1e5,
                                       description="Texel size of the synthesised texture (paper: ~400 texels/inch)")

@@ -1,15 +1,39 @@
-"""Operators: thin wrappers over ``api`` that report errors to the user instead of raising."""
+"""Operators: thin wrappers over ``api`` that report errors to the user instead of raising.
+
+Long work (table simulation, lobe fitting, OSL compile) runs inside ``execute()`` with
+``wm.progress_*`` so it also works headless (``blender -b``).
+"""
 from __future__ import annotations
 
 import bpy
 
-from . import api
+from . import api, osl_compile, presets
 
 
 def _preset_items(_self, _context):
-    from . import presets
-
     return [(p.name, p.name.replace("_", " ").title(), p.description) for p in presets.PRESETS.values()]
+
+
+def _assign(obj, mat) -> None:
+    if obj.data.materials:
+        obj.data.materials[obj.active_material_index] = mat
+    else:
+        obj.data.materials.append(mat)
+
+
+class _Progress:
+    """Context manager around ``wm.progress_begin/update/end`` (harmless headless)."""
+
+    def __init__(self, context):
+        self.wm = context.window_manager
+
+    def __enter__(self):
+        self.wm.progress_begin(0, 100)
+        return lambda f: self.wm.progress_update(int(100 * f))
+
+    def __exit__(self, *exc):
+        self.wm.progress_end()
+        return False
 
 
 class SCRATCH_OT_add_preset_material(bpy.types.Operator):
@@ -31,17 +55,54 @@ class SCRATCH_OT_add_preset_material(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
+        p = presets.get(self.preset)
         try:
-            mat = api.make_material(self.preset)
-        except ValueError as exc:
+            with _Progress(context) as progress:
+                if p.kind == "scratch":
+                    mat = api.make_scratched_material(self.preset, progress=progress)
+                    mat.scratch.from_params(p.params)
+                else:
+                    mat = api.make_material(self.preset)
+        except (ValueError, osl_compile.OSLCompileError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        if obj.data.materials:
-            obj.data.materials[obj.active_material_index] = mat
-        else:
-            obj.data.materials.append(mat)
+        _assign(obj, mat)
+        if p.kind == "scratch":
+            context.scene.cycles.shading_system = True
+            if not obj.data.uv_layers:
+                self.report({"WARNING"}, f"{obj.name} has no UV map: scratches follow UVs, add one")
         self.report({"INFO"}, f"Assigned {mat.name}")
         return {"FINISHED"}
 
 
-classes = (SCRATCH_OT_add_preset_material,)
+class SCRATCH_OT_update_material(bpy.types.Operator):
+    """Recompute the scratch tables and shader of the active material from its settings"""
+
+    bl_idname = "scratch.update_material"
+    bl_label = "Update Scratch Material"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        mat = getattr(context, "material", None)
+        if mat is None:
+            cls.poll_message_set("No active material")
+            return False
+        return True
+
+    def execute(self, context):
+        mat = context.material
+        try:
+            params = mat.scratch.to_params()
+            with _Progress(context) as progress:
+                api.make_scratched_material(material=mat, progress=progress, **params)
+        except (ValueError, osl_compile.OSLCompileError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        context.scene.cycles.shading_system = True
+        err = mat.get("scratch_addon_fit_error")
+        self.report({"INFO"}, f"Updated {mat.name}" + (f" (lobe fit error {100 * err:.1f} %)" if err is not None else ""))
+        return {"FINISHED"}
+
+
+classes = (SCRATCH_OT_add_preset_material, SCRATCH_OT_update_material)

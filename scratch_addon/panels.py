@@ -1,4 +1,4 @@
-"""Material-panel UI."""
+"""Material-panel UI: the scratch SV-BRDF settings of the active material."""
 from __future__ import annotations
 
 import bpy
@@ -18,8 +18,49 @@ class SCRATCH_PT_material(bpy.types.Panel):
         layout = self.layout
         layout.operator_menu_enum("scratch.add_preset_material", "preset", text="Add from Preset")
         mat = context.material
-        if mat is not None and "scratch_addon_kind" in mat:
-            layout.label(text=f"Kind: {mat['scratch_addon_kind']}")
+        if mat is None:
+            return
+        if context.scene.cycles.shading_system is False and mat.get("scratch_addon_kind") == "scratch_svbrdf":
+            layout.label(text="Enable Open Shading Language (Render > Shading System)", icon="ERROR")
+        s = mat.scratch
+        col = layout.column()
+        box = col.box()
+        box.label(text="Profile and Fresnel")
+        box.prop(s, "profile_type")
+        box.prop(s, "profile_file" if s.profile_type == "file" else "profile_value")
+        box.prop(s, "fresnel_type")
+        if s.fresnel_type == "metal":
+            box.prop(s, "metal")
+        elif s.fresnel_type == "conductor":
+            row = box.row()
+            row.prop(s, "ior_n")
+            row.prop(s, "ior_k")
+        elif s.fresnel_type == "schlick":
+            box.prop(s, "ior")
+        box.prop(s, "tint")
+        box = col.box()
+        box.prop(s, "use_layers")
+        if s.use_layers:
+            for name in ("n_layers", "theta_deg", "length", "width", "density", "seed"):
+                box.prop(s, name)
+        box = col.box()
+        box.prop(s, "base_type")
+        if s.base_type in ("diffuse", "glossy", "principled"):
+            box.prop(s, "base_color")
+        if s.base_type in ("glossy", "principled"):
+            box.prop(s, "base_roughness")
+        box.prop(s, "diffuse_type")
+        if s.diffuse_type == "color":
+            box.prop(s, "diffuse_color")
+        box = col.box()
+        row = box.row()
+        row.prop(s, "lobes")
+        row.prop(s, "resolution")
+        box.prop(s, "mode", expand=True)
+        col.operator("scratch.update_material", icon="FILE_REFRESH")
+        err = mat.get("scratch_addon_fit_error")
+        if err is not None:
+            col.label(text=f"Lobe fit error (worst slice): {100 * err:.1f} %")
 
 
 classes = (SCRATCH_PT_material,)

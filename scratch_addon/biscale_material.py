@@ -1,0 +1,202 @@
+"""Bi-scale materials in Blender (Wu et al. 2011): tile mesh -> effective BRDF -> Cycles material.
+
+* ``tile_from_object``: the evaluated mesh of an object as a periodic tile (object space; the
+  footprint is the x/y bounding square of the mesh, moved to [0, P]^2).
+* ``small_scale_material``: a material slot -> small-scale BRDF dict (``precompute.biscale_brdfs``):
+
+  - a *Diffuse BSDF* feeding the output -> ``lambert`` with albedo = its Color;
+  - a *Principled BSDF* -> ``cook_torrance`` with the GGX distribution, alpha = Roughness²
+    (Blender's own mapping), F0 = Base Color for Metallic = 1 and 0.04·Specular IOR Level/0.5
+    for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
+  - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², F0 = Color, no diffuse);
+  - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
+* ``make_biscale_material``: the fitted closure mixture (``precompute.biscale_fit``) as SVM nodes
+  (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups, tangent from the UV map): works on GPU.
+* ``bake``: the whole pipeline with an in-memory cache of ``BiscaleTile`` keyed by the mesh's
+  content hash, so colour-only / material-only edits reuse visibility and N (fast path).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+
+import bpy
+import numpy as np
+
+from . import _deps
+from .materials import new_material
+
+#: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
+_TILE_CACHE: dict = {}
+_TILE_CACHE_MAX = 4
+
+
+def tile_from_object(obj, depsgraph=None):
+    """(vertices (V, 3), faces (F, 3), face_material (F,), period) of ``obj``'s evaluated mesh.
+
+    Raises ValueError for non-mesh objects, empty meshes and non-square footprints."""
+    if obj is None or obj.type != "MESH":
+        raise ValueError(f"tile object: expected a mesh object, got {getattr(obj, 'type', None)!r}")
+    depsgraph = depsgraph or bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        nv, nt = len(mesh.vertices), len(mesh.loop_triangles)
+        if nv < 3 or nt == 0:
+            raise ValueError(f"tile object {obj.name!r}: the mesh has no faces")
+        V = np.empty(nv * 3, np.float64)
+        mesh.vertices.foreach_get("co", V)
+        F = np.empty(nt * 3, np.int64)
+        mesh.loop_triangles.foreach_get("vertices", F)
+        M = np.empty(nt, np.int64)
+        mesh.loop_triangles.foreach_get("material_index", M)
+    finally:
+        ev.to_mesh_clear()
+    V, F = V.reshape(-1, 3), F.reshape(-1, 3)
+    lo, hi = V[:, :2].min(0), V[:, :2].max(0)
+    ext = hi - lo
+    P = float(ext.max())
+    if P <= 0 or abs(ext[0] - ext[1]) > 1e-4 * P:
+        raise ValueError(f"tile object {obj.name!r}: the x/y footprint must be a square (got {ext[0]:.6g} x "
+                         f"{ext[1]:.6g}); the tile is not tileable")
+    V = V - np.array([lo[0], lo[1], 0.0])
+    return V, F, M, P
+
+
+def mesh_hash(V, F, M, P) -> str:
+    h = hashlib.sha256()
+    for a in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64), np.ascontiguousarray(M, np.int64)):
+        h.update(a.tobytes())
+    h.update(repr(float(P)).encode())
+    return h.hexdigest()[:24]
+
+
+def _output_shader_node(mat):
+    tree = getattr(mat, "node_tree", None)
+    if tree is None:
+        return None
+    out = next((nd for nd in tree.nodes if nd.bl_idname == "ShaderNodeOutputMaterial" and nd.is_active_output), None)
+    out = out or next((nd for nd in tree.nodes if nd.bl_idname == "ShaderNodeOutputMaterial"), None)
+    if out is None or not out.inputs["Surface"].is_linked:
+        return None
+    return out.inputs["Surface"].links[0].from_node
+
+
+def _val(node, name, default):
+    s = node.inputs.get(name)
+    return default if s is None else s.default_value
+
+
+def small_scale_material(mat) -> dict:
+    """Small-scale BRDF dict of a Blender material (see the module docstring for the mapping)."""
+    if mat is None:
+        return {"model": "lambert", "albedo": 0.8}
+    node = _output_shader_node(mat)
+    clamp = lambda c: tuple(float(np.clip(x, 0.0, 1.0)) for x in list(c)[:3])  # noqa: E731
+    if node is not None and node.bl_idname == "ShaderNodeBsdfDiffuse":
+        return {"model": "lambert", "albedo": clamp(_val(node, "Color", (0.8, 0.8, 0.8, 1)))}
+    if node is not None and node.bl_idname == "ShaderNodeBsdfPrincipled":
+        base = np.array(clamp(_val(node, "Base Color", (0.8, 0.8, 0.8, 1))))
+        metal = float(np.clip(_val(node, "Metallic", 0.0), 0, 1))
+        rough = float(np.clip(_val(node, "Roughness", 0.5), 0, 1))
+        spec = float(np.clip(_val(node, "Specular IOR Level", 0.5), 0, 1))
+        f0 = (1 - metal) * min(0.08 * spec, 1.0) + metal * base
+        return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(rough * rough, 1e-3),
+                "F0": tuple(float(x) for x in np.clip(f0, 0, 1)), "kd": tuple(float(x) for x in base * (1 - metal)),
+                "ks": 1.0}
+    if node is not None and node.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic"):
+        rough = float(np.clip(_val(node, "Roughness", 0.5), 0, 1))
+        return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(rough * rough, 1e-3),
+                "F0": clamp(_val(node, "Color", (0.8, 0.8, 0.8, 1))), "kd": 0.0, "ks": 1.0}
+    return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
+
+
+def get_tile(V, F, M, P, color_weights=None, **opts):
+    """Cached ``BiscaleTile`` (visibility + N reused when only colours or materials change)."""
+    bs = _deps.sibling("precompute.biscale")
+    key = (mesh_hash(V, F, M, P), tuple(sorted(opts.items())))
+    tile = _TILE_CACHE.get(key)
+    hit = tile is not None
+    if tile is None:
+        tile = bs.BiscaleTile(V, F, M, period=P, color_weights=color_weights, **opts)
+        if len(_TILE_CACHE) >= _TILE_CACHE_MAX:
+            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
+        _TILE_CACHE[key] = tile
+    elif color_weights is not None or tile.alpha.min() != 1.0 or tile.alpha.max() != 1.0:
+        tile.set_color_weights(color_weights)  # colour edit: N only
+    return tile, hit
+
+
+def make_biscale_material(fit, name: str = "Bi-scale", use_tilted: bool = True) -> bpy.types.Material:
+    """Cycles material (SVM) for a ``precompute.biscale_fit.ClosureFit``."""
+    fitmod = _deps.sibling("precompute.biscale_fit")
+    group = _deps.sibling("node_groups.biscale").ensure()
+    mat = new_material(name)
+    mat.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
+    tree = mat.node_tree
+    out = tree.nodes["Material Output"]
+    diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
+    diff.inputs["Color"].default_value = (*[float(c) for c in np.clip(fit.diffuse, 0, 1)], 1.0)
+    diff.inputs["Roughness"].default_value = 0.0
+    diff.location = (-300, 200)
+    shader = diff.outputs["BSDF"]
+    for k, lb in enumerate(fit.lobes):
+        node = tree.nodes.new("ShaderNodeGroup")
+        node.node_tree = group
+        node.location = (-300, -180 * (k + 1))
+        r, an = fitmod.glossy_node_params(lb.alpha_x, lb.alpha_y)
+        node.inputs["Color"].default_value = (*[float(c) for c in np.clip(lb.colour, 0, 1)], 1.0)
+        node.inputs["Roughness"].default_value = r
+        node.inputs["Anisotropy"].default_value = an
+        node.inputs["Tilt"].default_value = lb.tilt if use_tilted else 0.0
+        node.inputs["Tilt Azimuth"].default_value = lb.tilt_azimuth
+        node.inputs["Tangent Azimuth"].default_value = lb.tangent_azimuth
+        add = tree.nodes.new("ShaderNodeAddShader")
+        add.location = (0, -180 * k)
+        tree.links.new(shader, add.inputs[0])
+        tree.links.new(node.outputs["BSDF"], add.inputs[1])
+        shader = add.outputs["Shader"]
+    tree.links.new(shader, out.inputs["Surface"])
+    mat["scratch_addon_kind"] = "biscale"
+    mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
+    mat["biscale_fit_psnr"] = float(fit.psnr)
+    return mat
+
+
+def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None, exr_dir: str | None = None,
+         **opts):
+    """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials), fitted
+    closure material applied to ``target`` (if given).  Returns (material, EffectiveBRDF, ClosureFit,
+    info dict).  ``progress(fraction)`` is called between steps."""
+    bs = _deps.sibling("precompute.biscale")
+    fitmod = _deps.sibling("precompute.biscale_fit")
+    cache = _deps.sibling("precompute.cache")
+    step = progress or (lambda f: None)
+    step(0.0)
+    V, F, M, P = tile_from_object(tile_obj, depsgraph)
+    slots = [s.material for s in tile_obj.material_slots] or [None]
+    materials = [small_scale_material(m) for m in slots]
+    M = np.minimum(M, len(materials) - 1)
+    step(0.1)
+    tile, reused = get_tile(V, F, M, P, **opts)
+    step(0.3)
+    brdf = tile.effective_brdf(materials)
+    step(0.7)
+    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes)
+    step(0.9)
+    h = mesh_hash(V, F, M, P)
+    exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
+    os.makedirs(exr_dir, exist_ok=True)
+    exr = os.path.join(exr_dir, f"biscale_{h}_{abs(hash(repr(materials))) % 10 ** 8}.exr")
+    brdf.save_exr(exr)
+    mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}")
+    mat["biscale_table"] = exr
+    if target is not None:
+        if target.data.materials:
+            target.data.materials[target.active_material_index] = mat
+        else:
+            target.data.materials.append(mat)
+    step(1.0)
+    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}
+    return mat, brdf, fit, info
