@@ -133,7 +133,7 @@ def make_biscale_material(fit, name: str = "Bi-scale", use_tilted: bool = True) 
     fitmod = _deps.sibling("precompute.biscale_fit")
     group = _deps.sibling("node_groups.biscale").ensure()
     mat = new_material(name)
-    mat.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
+    mat.cycles.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
     tree = mat.node_tree
     out = tree.nodes["Material Output"]
     diff = tree.nodes.new("ShaderNodeBsdfDiffuse")

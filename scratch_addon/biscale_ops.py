@@ -122,7 +122,7 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
 
         tile_obj = context.active_object
         target = bpy.data.objects.get(self.target) if self.target else next(
-            (o for o in context.selected_objects if o is not tile_obj and o.type == "MESH"), None)
+            (o for o in context.view_layer.objects if o.select_get() and o is not tile_obj and o.type == "MESH"), None)
         if self.target and target is None:
             self.report({"ERROR"}, f"target: no object named {self.target!r}")
             return {"CANCELLED"}

@@ -25,6 +25,7 @@ osl_gen = _deps.sibling("osl.scratch_svbrdf")
 
 BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
 MODES = ("lobes", "reference")
+BACKENDS = ("osl", "svm")
 
 
 @dataclass
@@ -41,6 +42,7 @@ class ScratchParams:
     slices: int
     tint: tuple
     diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
+    backend: str = "osl"    # "osl" (CPU/OptiX, footprint-filtered α, hash-picked lobes) or "svm" (GPU/EEVEE)
 
 
 def _as_layers(layers):
@@ -92,7 +94,7 @@ def _as_fresnel(fresnel):
 
 
 def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
-             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None) -> ScratchParams:
+             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl") -> ScratchParams:
     """Check every parameter; raise ValueError naming the parameter and its allowed range."""
     profile = profiles.quartic(0.2) if profile is None else _as_profile(profile)
     if not isinstance(profile, profiles.Profile):
@@ -109,11 +111,15 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
     if slices not in (16, 32, 64, 128) or slices > resolution:
         raise ValueError(f"slices must be one of 16, 32, 64, 128 and <= resolution; got {slices!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
+    if backend == "svm" and mode != "lobes":
+        raise ValueError("mode must be 'lobes' with backend 'svm' (the reference mode needs OSL)")
     rgba = materials.check_color("tint", tint)
     if diffuse is not None and diffuse != "wood":
         diffuse = materials.check_color("diffuse", diffuse)[:3]
     return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices,
-                         rgba[:3], diffuse)
+                         rgba[:3], diffuse, backend)
 
 
 def _check_uvs_for(obj_meshes) -> None:
@@ -236,11 +242,14 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     if params.mode == "lobes":
         lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
     step(0.8)
-    src = shader_source(params, brdf, lobe_data, **spec_options)
     tree = material.node_tree
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     out.location = (500, 0)
+    if params.backend == "svm":
+        surface = _build_svm(tree, material, params, lobe_data)
+        return _finish(material, tree, out, surface, params, lobe_data, step)
+    src = shader_source(params, brdf, lobe_data, **spec_options)
     text_name = f"{material.name}.scratch.osl"
     script = osl_compile.script_node_from_source(tree, text_name, src)
     script.location = (200, 0)
@@ -257,7 +266,21 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     if base is not None and "Base" in script.inputs:
         base.location = (-200, -250)
         tree.links.new(base.outputs[0], script.inputs["Base"])
-    surface = script.outputs["BSDF"]
+    return _finish(material, tree, out, script.outputs["BSDF"], params, lobe_data, step)
+
+
+def _build_svm(tree, material, params: ScratchParams, lobe_data) -> bpy.types.NodeSocket:
+    """The node-group (SVM) path: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
+    svm = _deps.sibling("node_groups.scratch_svm")
+    layers = params.layers
+    theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
+    base = _base_node(tree, params)
+    return svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
+                     base_socket=None if base is None else base.outputs[0], name=material.name)
+
+
+def _finish(material, tree, out, surface, params: ScratchParams, lobe_data, step) -> bpy.types.Material:
+    """Diffuse term, output link, material flags and the stored parameters."""
     if params.diffuse is not None:  # a Lambertian term common to scratches and base (Fig. 12c, d)
         diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
         diff.location = (200, -300)
@@ -281,6 +304,6 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
         "resolution": params.resolution, "slices": params.slices, "tint": list(params.tint),
-        "diffuse": params.diffuse}, default=_jsonable)
+        "diffuse": params.diffuse, "backend": params.backend}, default=_jsonable)
     step(1.0)
     return material

@@ -1,0 +1,221 @@
+"""SVM node-group path of the scratch SV-BRDF (GPU / EEVEE-safe, no OSL): Raymond et al. 2016 eqs. 2, 4, 7.
+
+Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
+``bench/scratch_svm_vs_osl.py`` and ``tests/test_scratch_svm.py``):
+
+- α_k is the *binary* indicator [F1]_d at the shading point (SVM has no ray differentials);
+  pixel sampling averages it, so images converge to the same footprint average, with more
+  noise at a distance where the OSL path filters α over the footprint;
+- every lobe of a slice is summed (SVM cannot hash-pick a closure without a mix tree), so the
+  cost grows with K; layers are still hash-picked (probability α_k / ᾱ), so cost does not grow
+  with N beyond one Voronoi node per layer;
+- lobe parameters come from packed Non-Color float images (one row per φo slice, one column
+  per lobe) read with Closest interpolation; the φo slice is picked stochastically between the
+  two nearest rows, as in OSL.
+"""
+from __future__ import annotations
+
+import math
+
+import bpy
+import numpy as np
+
+_PI = math.pi
+
+
+class _G:
+    """Tiny node-building helper: math on sockets or constants, auto-laid-out left to right."""
+
+    def __init__(self, tree):
+        self.tree = tree
+        self.n = 0
+
+    def node(self, kind, **props):
+        node = self.tree.nodes.new(kind)
+        for k, v in props.items():
+            setattr(node, k, v)
+        node.location = (200 * (self.n // 40), -60 * (self.n % 40))
+        self.n += 1
+        return node
+
+    def _set(self, socket, value):
+        if isinstance(value, bpy.types.NodeSocket):
+            self.tree.links.new(value, socket)
+        else:
+            socket.default_value = value
+
+    def math(self, op, a, b=0.0, c=None):
+        m = self.node("ShaderNodeMath", operation=op)
+        self._set(m.inputs[0], a)
+        self._set(m.inputs[1], b)
+        if c is not None:
+            self._set(m.inputs[2], c)
+        return m.outputs[0]
+
+    def vmath(self, op, a, b=None, scale=None):
+        m = self.node("ShaderNodeVectorMath", operation=op)
+        self._set(m.inputs[0], a)
+        if b is not None:
+            self._set(m.inputs[1], b)
+        if scale is not None:
+            self._set(m.inputs["Scale"], scale)
+        return m.outputs["Value"] if op in ("DOT_PRODUCT", "LENGTH", "DISTANCE") else m.outputs["Vector"]
+
+    def combine(self, x, y, z=0.0):
+        c = self.node("ShaderNodeCombineXYZ")
+        for s, v in zip(c.inputs, (x, y, z)):
+            self._set(s, v)
+        return c.outputs[0]
+
+    def separate(self, v):
+        s = self.node("ShaderNodeSeparateXYZ")
+        self._set(s.inputs[0], v)
+        return s.outputs
+
+    def add_shader(self, a, b):
+        if a is None:
+            return b
+        m = self.node("ShaderNodeAddShader")
+        self.tree.links.new(a, m.inputs[0])
+        self.tree.links.new(b, m.inputs[1])
+        return m.outputs[0]
+
+
+def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image, bpy.types.Image]:
+    """Packed Non-Color float images of a lobe table: W (RGB weights) and P (tilt, roughness, anisotropy, γ).
+
+    Rows = φo slices (row 0 at the bottom = slice 0), columns = lobes.  Glossy parameters follow
+    Cycles' mapping (α = roughness², α_u = α(1 - an), α_v = α / (1 - an)) so that α_u = alpha_x along
+    the scratch and α_v = the lobe width: roughness = (α_x α_y)^¼, anisotropy = 1 - √(α_x / α_y).
+    """
+    w = np.asarray(entry["weights"], np.float32)             # [S, K, 3]
+    S, K = w.shape[:2]
+    ay = np.maximum(np.asarray(entry["widths"], np.float64), alpha_x)
+    rough = (alpha_x * ay) ** 0.25
+    aniso = np.clip(1.0 - np.sqrt(alpha_x / ay), 0.0, 0.99)
+    p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
+    out = []
+    for suffix, arr in (("W", np.concatenate([w, np.ones((S, K, 1), np.float32)], -1)), ("P", p)):
+        img_name = f"{name}.{suffix}"
+        img = bpy.data.images.get(img_name)
+        if img is not None and tuple(img.size) != (K, S):
+            bpy.data.images.remove(img)
+            img = None
+        if img is None:
+            img = bpy.data.images.new(img_name, width=K, height=S, alpha=True, float_buffer=True, is_data=True)
+        img.colorspace_settings.is_data = True
+        img.pixels.foreach_set(arr.reshape(-1))
+        img.file_format = "OPEN_EXR"
+        img.pack()
+        out.append(img)
+    return out[0], out[1]
+
+
+def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
+          name: str = "scratch") -> bpy.types.NodeSocket:
+    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4)."""
+    g = _G(tree)
+    geo = g.node("ShaderNodeNewGeometry")
+    tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
+    uvn = g.node("ShaderNodeUVMap")
+    N = geo.outputs["Normal"]
+    wo = geo.outputs["Incoming"]  # towards the viewer
+    # t = normalize(T - (T.N) N), b = N x t
+    T = tan.outputs["Tangent"]
+    t = g.vmath("NORMALIZE", g.vmath("SUBTRACT", T, g.vmath("SCALE", N, scale=g.vmath("DOT_PRODUCT", T, N))))
+    b = g.vmath("CROSS_PRODUCT", N, t)
+    # per-sample random numbers (P jitters per sample, as in the OSL path)
+    def noise(k):
+        wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D")
+        g._set(wn.inputs["Vector"], geo.outputs["Position"])
+        g._set(wn.inputs["W"], g.math("ADD", g.vmath("DOT_PRODUCT", wo, k), 17.0 * k[0]))
+        return wn.outputs["Value"]
+
+    h_slice, h_layer = noise((12.9898, 78.233, 37.719)), noise((93.989, 67.345, 24.113))
+
+    if layers is None:
+        theta_sel = 0.0
+        alpha_sum = 1.0
+    else:
+        uv = uvn.outputs["UV"]
+        uvs = g.separate(uv)
+        alphas, acc, accs = [], None, []
+        for k in range(layers.n_layers):
+            c, s_ = math.cos(theta_k[k]), math.sin(theta_k[k])
+            yx = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], c), g.math("MULTIPLY", uvs[1], s_)),
+                                        1.0 / layers.length), float(xi_k[k][0]))
+            yy = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], -s_), g.math("MULTIPLY", uvs[1], c)),
+                                        1.0 / layers.width), float(xi_k[k][1]))
+            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+            vor.inputs["Scale"].default_value = 1.0
+            vor.inputs["Randomness"].default_value = 1.0
+            g._set(vor.inputs["Vector"], g.combine(yx, yy))
+            a = g.math("LESS_THAN", vor.outputs["Distance"], float(layers.density) + 1e-7)  # [F1]_d, eq. 7
+            alphas.append(a)
+            acc = a if acc is None else g.math("ADD", acc, a)
+            accs.append(acc)
+        alpha_sum = acc
+        target = g.math("MULTIPLY", h_layer, alpha_sum)
+        theta_sel, prev = None, None
+        for k, acc_k in enumerate(accs):  # layer k is picked when acc_{k-1} <= target < acc_k
+            below = g.math("LESS_THAN", target, acc_k)
+            sel = below if prev is None else g.math("SUBTRACT", below, prev)
+            prev = below
+            term = g.math("MULTIPLY", sel, float(theta_k[k]))
+            theta_sel = term if theta_sel is None else g.math("ADD", theta_sel, term)
+    # scratch frame of the picked layer
+    u = g.vmath("ADD", g.vmath("SCALE", t, scale=g.math("COSINE", theta_sel)), g.vmath("SCALE", b, scale=g.math("SINE", theta_sel)))
+    v = g.vmath("CROSS_PRODUCT", N, u)
+    theta_o = g.math("ARCSINE", g.math("MINIMUM", g.math("MAXIMUM", g.vmath("DOT_PRODUCT", wo, u), -1.0), 1.0))
+    phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
+    x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
+    S = lobe_data["m"]["weights"].shape[0]
+    xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
+    s0 = g.math("FLOOR", xs)
+    s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
+    s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
+    row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
+
+    scratch = None
+    for key, use_r_m in (("m", True), ("0", False)):
+        entry = lobe_data[key]
+        if entry is None:
+            continue
+        lossless = lobe_data["0"] is None
+        img_w, img_p = lobe_images(f"{name}.{key}", entry, lobe_data["alpha_x"])
+        K = entry["weights"].shape[1]
+        for j in range(K):
+            if not np.any(entry["weights"][:, j] > 0):
+                continue
+            coord = g.combine((j + 0.5) / K, row)
+            tw = g.node("ShaderNodeTexImage", image=img_w, interpolation="Closest", extension="EXTEND")
+            tp = g.node("ShaderNodeTexImage", image=img_p, interpolation="Closest", extension="EXTEND")
+            g._set(tw.inputs["Vector"], coord)
+            g._set(tp.inputs["Vector"], coord)
+            tilt, rough, aniso = g.separate(tp.outputs["Color"])
+            gamma = tp.outputs["Alpha"]
+            n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
+                                              g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
+            colour = tw.outputs["Color"]
+            if not lossless:  # eq. 2 per lobe: R_γ(θo) for ρm lobes, 1 - R_γ for ρ0 lobes
+                r = g.math("POWER", x, gamma)
+                f = r if use_r_m else g.math("SUBTRACT", 1.0, r)
+                colour = g.vmath("SCALE", colour, scale=f)
+            if tuple(tint) != (1.0, 1.0, 1.0):
+                colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+            glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+            g._set(glossy.inputs["Color"], colour)
+            g._set(glossy.inputs["Roughness"], rough)
+            g._set(glossy.inputs["Anisotropy"], aniso)
+            g._set(glossy.inputs["Normal"], n_l)
+            g._set(glossy.inputs["Tangent"], u)
+            scratch = g.add_shader(scratch, glossy.outputs[0])
+    if layers is None:
+        return scratch
+    # eq. 4 with one picked layer: min(ᾱ, 1) * ρ_k + max(1 - ᾱ, 0) * ρ_b  ==  Mix(fac = min(ᾱ, 1), base, ρ_k)
+    mixs = g.node("ShaderNodeMixShader")
+    g._set(mixs.inputs["Fac"], g.math("MINIMUM", alpha_sum, 1.0))
+    if base_socket is not None:
+        tree.links.new(base_socket, mixs.inputs[1])
+    tree.links.new(scratch, mixs.inputs[2])
+    return mixs.outputs[0]
