@@ -17,7 +17,7 @@ $(STAMP): requirements.txt
 venv: $(STAMP)
 
 demo: $(STAMP)
-	$(VPY) scratch_addon/cli.py --preset demo --out renders/demo.png
+	$(VPY) scratch_addon/cli.py --preset demo --out renders/demo.png --samples 64 --res 480 320
 
 test: $(STAMP)
 	$(VPY) -m pytest -q -p no:cacheprovider tests

@@ -41,11 +41,11 @@ from . import exr_io
 from .biscale_brdfs import Lobe, eval_material, material_lobes
 from .biscale_directions import (direction_bilinear, direction_grid, normal_grid,
                                  normal_splat, pole_index)
-from .biscale_geometry import Tile, face_geometry, sample_facets, validate_tile
+from .biscale_geometry import Tile, face_geometry, is_closed_surface, sample_facets, validate_tile
 from .biscale_svd import LowRank, random_projection_svd, random_projection_svd_streamed
 from .biscale_visibility import visibility_matrix
 
-__all__ = ["BiscaleTile", "EffectiveBRDF", "effective_brdf", "precompute_M", "brute_force_fr", "psnr",
+__all__ = ["BiscaleTile", "EffectiveBRDF", "effective_brdf", "precompute_M", "brute_force_fr", "brute_force_fr_at", "psnr",
            "DEFAULTS", "render_reference_fr"]
 
 M_VERSION = "1"
@@ -241,7 +241,10 @@ class BiscaleTile:
         if self._V is None:
             t0 = time.perf_counter()
             tri = self.tile.vertices[self.tile.faces]
-            self._V = visibility_matrix(tri, self.tile.period, self.pos, self.dirs)
+            _, fn = face_geometry(self.tile.vertices, self.tile.faces)
+            self.closed = is_closed_surface(self.tile)
+            self._V = visibility_matrix(tri, self.tile.period, self.pos, self.dirs,
+                                        point_normals=fn[self.face], closed=self.closed)
             self.timings["visibility"] = time.perf_counter() - t0
             cos = np.clip(self.n @ self.dirs.T, 0.0, None)
             self.a_v = (self._V * cos * self.dA[:, None]).sum(0)   # eq. 10
@@ -288,14 +291,14 @@ class BiscaleTile:
             B = sp.csr_matrix((swt[rows_s].ravel(), (np.repeat(np.arange(rows_s.size), 4), sidx[rows_s].ravel())),
                               shape=(rows_s.size, J))
             act = np.flatnonzero(np.asarray(abs(B).sum(0)).ravel() > 0)
-            Bt = sp.csr_matrix(B[:, act].T)                       # (J_act, S_g)
-            Vg = V[rows_s]
-            wg = w[rows_s]
-            N = np.empty((K, act.size))
-            step = max(1, 20_000_000 // max(rows_s.size, 1))
+            Bt = sp.csr_matrix(B[:, act].T.multiply(w[rows_s][None, :]), dtype=np.float32)  # (J_act, S_g), ΔA folded in
+            Vg = V[rows_s].astype(np.float32)
+            N = np.empty((K, act.size), np.float32)
+            step = max(1, 8_000_000 // max(rows_s.size, 1))
             for a in range(0, K, step):                             # chunks of direction pairs
                 b = min(a + step, K)
-                Y = (Vg[:, ia[a:b]] & Vg[:, ib[a:b]]) * wg[:, None]  # (S_g, k)
+                Y = Vg[:, ia[a:b]]
+                Y *= Vg[:, ib[a:b]]                                 # V_s(ωi) V_s(ωo), (S_g, k) float32
                 N[a:b] = (Bt @ Y).T
             lr = random_projection_svd(N, l=int(o["l_N"]), power=float(o["power_N"]), seed=o["seed"])
             out.append({"material": m, "beta": beta, "act": act, "N": lr})
@@ -396,6 +399,35 @@ def brute_force_fr(tile: BiscaleTile, materials, chunk: int = 256) -> np.ndarray
             acc += np.einsum("sk,skc,sc->kc", vis[sel] * cw, f, tile.alpha[sel])
         out[i, o] = acc / np.maximum(tile.a_v[o], 1e-300)[:, None]
     return out
+
+
+def brute_force_fr_at(tile: BiscaleTile, materials, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Direct eq. 8 (as ``brute_force_fr``) at arbitrary direction pairs ``wi``, ``wo`` (P, 3),
+    z > 0, with the visibility of the tile's facets ray cast for exactly those directions.
+    Returns (P, 3) f̄r (cosine-weighted).  Used to measure the interpolation error of
+    ``EffectiveBRDF.eval`` between grid directions."""
+    wi = np.atleast_2d(np.asarray(wi, np.float64))
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    if wi.shape != wo.shape or wi.shape[-1] != 3 or np.any(wi[:, 2] <= 0) or np.any(wo[:, 2] <= 0):
+        raise ValueError("wi, wo: expected two (P, 3) arrays of equal shape with z > 0")
+    tri = tile.tile.vertices[tile.tile.faces]
+    _, fn = face_geometry(tile.tile.vertices, tile.tile.faces)
+    dirs = np.concatenate([wi, wo])
+    Vd = visibility_matrix(tri, tile.tile.period, tile.pos, dirs, point_normals=fn[tile.face],
+                           closed=is_closed_surface(tile.tile))
+    P = len(wi)
+    Vi, Vo = Vd[:, :P], Vd[:, P:]
+    a_v = (Vo * np.clip(tile.n @ wo.T, 0, None) * tile.dA[:, None]).sum(0)      # eq. 10
+    out = np.zeros((P, 3))
+    for m, mat in enumerate(materials):
+        sel = np.flatnonzero(tile.facet_material == m)
+        if sel.size == 0:
+            continue
+        n = tile.n[sel][:, None, :]
+        f = eval_material(mat, n, wi[None], wo[None])                            # (S_m, P, 3)
+        cw = (n * wi[None]).sum(-1).clip(0) * (n * wo[None]).sum(-1).clip(0)
+        out += np.einsum("sp,spc,sc->pc", Vi[sel] * Vo[sel] * tile.dA[sel, None] * cw, f, tile.alpha[sel])
+    return out / np.maximum(a_v, 1e-300)[:, None]
 
 
 def render_reference_fr(tile: Tile, materials, wi: np.ndarray, wo: np.ndarray, n_rays: int = 4096,

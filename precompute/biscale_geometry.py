@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = [
-    "Tile", "validate_tile", "face_geometry", "sample_facets",
+    "Tile", "validate_tile", "face_geometry", "sample_facets", "is_closed_surface",
     "flat_tile", "groove_tile", "pyramid_tile", "rods_tile", "woven_tile", "heightfield_tile",
 ]
 
@@ -140,6 +140,52 @@ def validate_tile(vertices, faces, face_material=None, period: float = 1.0, n_ma
                 raise ValueError(f"vertices: opposite borders {name}=0 and {name}={P:g} do not match "
                                  f"(mismatch {d:.3g}); the tile is not tileable")
     return Tile(V, F, M, P)
+
+
+def is_closed_surface(tile: Tile) -> bool:
+    """True if the tile is one connected, consistently oriented closed surface on the torus:
+    after welding coincident vertices, every edge not lying on a footprint border line
+    (x or y = 0 or P) is shared by exactly two faces that traverse it in opposite
+    directions, and the faces form a single connected component.
+
+    Periodic height fields, pyramids, grooves and woven tiles are closed; several
+    interpenetrating closed parts (``rods_tile``: rods standing in a floor) or open sheets
+    are not.  ``biscale_visibility.visibility_matrix(closed=True)`` relies on this (§3.3)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    V, F, P = tile.vertices, tile.faces, tile.period
+    q = np.round(V / (1e-9 * P)).astype(np.int64)
+    _, weld = np.unique(q, axis=0, return_inverse=True)
+    weld = weld.ravel()
+    Fw = weld[F]
+    a = Fw.ravel()
+    b = Fw[:, [1, 2, 0]].ravel()
+    if np.any(a == b):
+        return False
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    sign = np.where(a < b, 1, -1)
+    key = lo * (weld.max() + 1) + hi
+    uk, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    net = np.bincount(inv.ravel(), sign, minlength=len(uk))
+    ok = (cnt == 2) & (net == 0)
+    if not ok.all():
+        # edges on a footprint border line may be used once (their partner is on the opposite border)
+        Vw = np.zeros((weld.max() + 1, 3))
+        Vw[weld] = V
+        tol = 1e-6 * P
+        e_lo, e_hi = uk // (weld.max() + 1), uk % (weld.max() + 1)
+        border = np.zeros(len(uk), bool)
+        for ax in (0, 1):
+            for side in (0.0, P):
+                border |= (np.abs(Vw[e_lo, ax] - side) <= tol) & (np.abs(Vw[e_hi, ax] - side) <= tol)
+        if not np.all(ok | (border & (cnt == 1))):
+            return False
+    n = weld.max() + 1
+    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
+    used = np.unique(Fw)
+    ncomp, lab = connected_components(g, directed=False)
+    return len(np.unique(lab[used])) == 1
 
 
 # ----------------------------------------------------------------------------- §3.2 facets

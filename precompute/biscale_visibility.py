@@ -40,7 +40,8 @@ class TorusGrid:
     ``tri``: (T, 3, 3) triangle vertex positions; ``period``: tile size P; ``omega``: unit
     direction with ω_z > 0 along which rays travel (rays are tested going *towards* ω)."""
 
-    def __init__(self, tri: np.ndarray, period: float, omega: np.ndarray, cells: int | None = None):
+    def __init__(self, tri: np.ndarray, period: float, omega: np.ndarray, cells: int | None = None,
+                 occluders: np.ndarray | None = None):
         omega = _check_direction(omega)
         self.P = float(period)
         self.omega = omega
@@ -53,11 +54,21 @@ class TorusGrid:
         det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
         scale = np.abs(U).max() + 1.0
         keep = np.abs(det) > 1e-14 * scale * scale  # edge-on triangles cover no area
+        if occluders is not None:
+            keep &= occluders
         self.U0, self.e1, self.e2, self.det, self.Z = U[keep, 0], e1[keep], e2[keep], det[keep], Z[keep]
         self.tri_id = np.nonzero(keep)[0]
+        # affine maps u -> (b1, b2, z) per triangle (rows of coef @ (ux, uy, 1)): barycentrics
+        # b1 = ((u-U0) x e2)/det, b2 = (e1 x (u-U0))/det and the plane height z
+        e1k, e2k, dk, U0k, Zk = self.e1, self.e2, self.det, self.U0, self.Z
+        b1 = np.stack([e2k[:, 1], -e2k[:, 0], -(U0k[:, 0] * e2k[:, 1] - U0k[:, 1] * e2k[:, 0])], -1) / dk[:, None]
+        b2 = np.stack([-e1k[:, 1], e1k[:, 0], -(e1k[:, 0] * U0k[:, 1] - e1k[:, 1] * U0k[:, 0])], -1) / dk[:, None]
+        zc = b1 * (Zk[:, 1] - Zk[:, 0])[:, None] + b2 * (Zk[:, 2] - Zk[:, 0])[:, None]
+        zc[:, 2] += Zk[:, 0]
+        self.coef = np.stack([b1, b2, zc], 1)  # (T, 3, 3)
         U = U[keep]
         T = U.shape[0]
-        G = cells if cells is not None else int(np.clip(np.sqrt(max(T, 1)) * 1.0, 4, 256))
+        G = cells if cells is not None else int(np.clip(np.sqrt(max(T, 1)), 4, 256))  # ~1 triangle per cell
         self.G = G
         h = self.P / G
         self.h = h
@@ -65,6 +76,8 @@ class TorusGrid:
             self.cell_start = np.zeros(G * G + 1, np.int64)
             self.piece_tri = np.zeros(0, np.int64)
             self.piece_shift = np.zeros((0, 2))
+            self.piece_zmax = np.zeros(0)
+            self.cell_zmax = np.full(G * G, -np.inf)
             return
         # --- scan conversion: (triangle, row) pairs with exact x-extent inside the row band
         y = U[..., 1]
@@ -90,8 +103,10 @@ class TorusGrid:
                 xmin = np.where(ok, np.minimum(xmin, xi), xmin)
                 xmax = np.where(ok, np.maximum(xmax, xi), xmax)
         pad = 1e-9 * h
-        c0 = np.floor((xmin - pad) / h).astype(np.int64)
-        c1 = np.floor((xmax + pad) / h).astype(np.int64)
+        with np.errstate(invalid="ignore"):  # rows that only touch a vertex have an empty extent (inf)
+            fin = np.isfinite(xmin) & np.isfinite(xmax)
+            c0 = np.where(fin, np.floor((np.where(fin, xmin, 0.0) - pad) / h), 0).astype(np.int64)
+            c1 = np.where(fin, np.floor((np.where(fin, xmax, 0.0) + pad) / h), -1).astype(np.int64)
         valid = c1 >= c0
         t_of, row, c0, c1 = t_of[valid], row[valid], c0[valid], c1[valid]
         ncol = c1 - c0 + 1
@@ -101,19 +116,27 @@ class TorusGrid:
         wr, wc = np.mod(p_row, G), np.mod(p_col, G)
         shift = np.stack([(p_col - wc) // G, (p_row - wr) // G], -1) * self.P  # lattice shift (x, y)
         cell = wr * G + wc
-        order = np.argsort(cell, kind="stable")
+        order = np.argsort(cell.astype(np.int32) if G * G < 2 ** 31 else cell, kind="stable")
         self.piece_tri = p_tri[order]
         self.piece_shift = shift[order]
         counts = np.bincount(cell, minlength=G * G)
         self.cell_start = np.concatenate([[0], np.cumsum(counts)])
+        # highest point of each piece's triangle and of each cell (cheap conservative culls)
+        self.piece_zmax = self.Z.max(1)[self.piece_tri]
+        cz = np.full(G * G, -np.inf)
+        np.maximum.at(cz, cell, self.Z.max(1)[p_tri])
+        self.cell_zmax = cz
 
-    def _candidates(self, points: np.ndarray):
-        """(ray index, piece index, wrapped sheared point) for every ray x piece-in-its-cell pair."""
+    def _cells(self, points: np.ndarray):
         u = points[:, :2] - points[:, 2:3] * self.shear
         uw = np.mod(u, self.P)
         cx = np.minimum((uw[:, 0] / self.h).astype(np.int64), self.G - 1)
         cy = np.minimum((uw[:, 1] / self.h).astype(np.int64), self.G - 1)
-        cell = cy * self.G + cx
+        return cy * self.G + cx, uw
+
+    def _candidates(self, points: np.ndarray):
+        """(ray index, piece index, wrapped sheared point) for every ray x piece-in-its-cell pair."""
+        cell, uw = self._cells(points)
         start = self.cell_start[cell]
         cnt = self.cell_start[cell + 1] - start
         ray = np.repeat(np.arange(points.shape[0]), cnt)
@@ -124,30 +147,40 @@ class TorusGrid:
         """Yield (ray, height of the covering triangle, triangle id) for candidate pairs that
         cover the ray's sheared point."""
         ray, piece, uw = self._candidates(points)
+        tol = 1e-9
         for a in range(0, ray.size, chunk):
             r, p = ray[a:a + chunk], piece[a:a + chunk]
             t = self.piece_tri[p]
-            d = uw[r] + self.piece_shift[p] - self.U0[t]
-            e1, e2, det = self.e1[t], self.e2[t], self.det[t]
-            b1 = (d[:, 0] * e2[:, 1] - d[:, 1] * e2[:, 0]) / det
-            b2 = (e1[:, 0] * d[:, 1] - e1[:, 1] * d[:, 0]) / det
-            tol = 1e-9
-            inside = (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1.0 + tol)
-            Zt = self.Z[t]
-            zh = Zt[:, 0] + b1 * (Zt[:, 1] - Zt[:, 0]) + b2 * (Zt[:, 2] - Zt[:, 0])
-            yield r[inside], zh[inside], self.tri_id[t[inside]]
+            u = uw[r] + self.piece_shift[p]          # sheared point in the piece's lattice copy
+            A = self.coef[t]                           # (n, 3, 3)
+            v = A[:, :, 0] * u[:, 0:1] + A[:, :, 1] * u[:, 1:2] + A[:, :, 2]   # (b1, b2, z)
+            inside = (v[:, 0] >= -tol) & (v[:, 1] >= -tol) & (v[:, 0] + v[:, 1] <= 1.0 + tol)
+            yield r[inside], v[inside, 2], self.tri_id[t[inside]]
 
 
 def occluded(grid: TorusGrid, points: np.ndarray, eps: float) -> np.ndarray:
     """Boolean (N,): is there tile surface on the ray points + tω, t > 0 (shadow/masking, §3.3)?
 
     A hit counts if it is more than ``eps`` (length units) above the ray origin, which
-    excludes the origin's own triangle."""
+    excludes the origin's own triangle.  Rays higher than everything in their cell, and
+    candidate triangles lower than the ray origin, are culled before the exact test."""
     points = np.asarray(points, dtype=np.float64)
     occ = np.zeros(points.shape[0], dtype=bool)
-    for r, zh, _ in grid._hit_heights(points):
-        hit = zh > points[r, 2] + eps
-        occ[r[hit]] = True
+    cell, _ = grid._cells(points)
+    live = np.flatnonzero(points[:, 2] + eps < grid.cell_zmax[cell])
+    if live.size == 0:
+        return occ
+    pts = points[live]
+    ray, piece, uw = grid._candidates(pts)
+    high = grid.piece_zmax[piece] > pts[ray, 2] + eps
+    ray, piece = ray[high], piece[high]
+    t = grid.piece_tri[piece]
+    u = uw[ray] + grid.piece_shift[piece]
+    A = grid.coef[t]
+    v = A[:, :, 0] * u[:, 0:1] + A[:, :, 1] * u[:, 1:2] + A[:, :, 2]   # (b1, b2, z)
+    tol = 1e-9
+    hit = (v[:, 0] >= -tol) & (v[:, 1] >= -tol) & (v[:, 0] + v[:, 1] <= 1.0 + tol) & (v[:, 2] > pts[ray, 2] + eps)
+    occ[live[ray[hit]]] = True
     return occ
 
 
@@ -167,17 +200,51 @@ def first_hit(grid: TorusGrid, u: np.ndarray, z_top: float) -> tuple[np.ndarray,
 
 
 def visibility_matrix(tri: np.ndarray, period: float, points: np.ndarray, directions: np.ndarray,
-                      eps: float | None = None) -> np.ndarray:
+                      eps: float | None = None, point_normals: np.ndarray | None = None,
+                      closed: bool = False) -> np.ndarray:
     """V[s, d] = 1 if point s sees direction d unoccluded in the repeated tile (§3.3).
 
     ``tri`` (T, 3, 3), ``points`` (S, 3) on the surface, ``directions`` (D, 3) with z > 0.
-    Returns a bool array (S, D).  Loops over directions; each is one batched ray cast."""
+    Returns a bool array (S, D).  Loops over directions; each is one batched ray cast.
+
+    Culling (exact, never changes a result it is allowed for):
+
+    * ``point_normals`` (S, 3): a point whose surface normal faces away from ω (n·ω <= 0)
+      is self-occluded, V = 0, without a ray (the ray enters its own solid);
+    * points higher than every occluder cannot be occluded (rays go up): V = 1;
+    * ``closed=True`` (the tile is one connected, consistently oriented closed periodic
+      surface, see ``biscale_geometry.is_closed_surface``; needs ``point_normals``): a ray
+      leaving a front-facing point is outside the solid, so the first surface it meets is
+      entered from outside, i.e. through a triangle whose normal faces *against* ω.  Only
+      those triangles (n_t·ω < 0) are occluders.  At normal incidence on a height field
+      there are none at all."""
     points = np.asarray(points, dtype=np.float64)
     directions = np.asarray(directions, dtype=np.float64)
+    if closed and point_normals is None:
+        raise ValueError("closed: occluder culling needs point_normals (S, 3)")
     if eps is None:
         span = float(np.ptp(tri[..., 2])) if tri.size else 0.0
         eps = 1e-7 * (float(period) + span)
+    if closed or point_normals is not None:
+        c = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])   # un-normalised triangle normals
     V = np.empty((points.shape[0], directions.shape[0]), dtype=bool)
+    zmax_tri = tri[..., 2].max(1)
     for d, w in enumerate(directions):
-        V[:, d] = ~occluded(TorusGrid(tri, period, w), points, eps)
+        w = _check_direction(w)
+        test = np.ones(points.shape[0], bool)
+        vis = np.ones(points.shape[0], bool)
+        if point_normals is not None:
+            front = point_normals @ w > 0
+            vis &= front
+            test &= front
+        occ = (c @ w < 0) if closed else None
+        zt = zmax_tri[occ] if occ is not None else zmax_tri
+        if zt.size == 0:
+            V[:, d] = vis
+            continue
+        test &= points[:, 2] < zt.max() - eps
+        idx = np.flatnonzero(test)
+        if idx.size:
+            vis[idx] = ~occluded(TorusGrid(tri, period, w, occluders=occ), points[idx], eps)
+        V[:, d] = vis
     return V

@@ -58,10 +58,9 @@ _add(Preset("fig14a_shallow", "scratch", "Fig. 14a / Table 1: nearly flat profil
             dict(profile=("quartic", 0.05), fresnel="iron", layers=_layers(4, 7, 0.02, 7e-4, 0.5), base="mirror")))
 _add(Preset("fig14b_steep", "scratch", "Fig. 14b / Table 1: steep profile, scratched",
             dict(profile=("quartic", 0.6), fresnel="iron", layers=_layers(16, 360, 0.02, 1e-5, 0.2), base="mirror")))
-#: The README demo: visible glint lines on the demo torus (UV range 1 around the ring).
-_add(Preset("demo", "scratch", "README demo: scratched aluminium, 16 layers sized for the demo torus",
-            dict(profile=("quartic", 0.3), fresnel="aluminium", layers=_layers(16, 360, 1.0, 0.01, 0.05),
-                 base="mirror")))
+#: The README demo: the paper's Fig. 14a row (shallow profile, brushed) on the demo torus.
+_add(Preset("demo", "scratch", "README demo: the Fig. 14a / Table 1 preset (shallow brushed iron)",
+            dict(PRESETS["fig14a_shallow"].params)))
 
 
 def names() -> list[str]:

@@ -1,0 +1,118 @@
+"""Render cost of the scratch SV-BRDF vs the SVM anisotropic GGX baseline (Raymond et al. 2016, Table 2 shape).
+
+All set-ups render the demo scene (torus, studio world, small area light) at equal samples, interleaved
+in one process, median of --repeats; ratios are against the SVM anisotropic GGX in the same run.
+
+  baseline          node_groups/brushed.py (SVM Glossy, GGX, anisotropic)
+  osl N layers      the generated OSL shader, N = 1, 4, 16, 32 layers (hash-picked layer and lobe)
+  osl all-lobes     4 layers with every lobe summed (lobe_mode="all"): the cost of K without picking
+  svm N layers      the node-group path (every lobe of a slice summed), N = 1, 4
+  K = 1..8          4 layers, OSL, varying the lobe budget (render cost vs fit error, with bench.lobe_fit)
+  skip              the baseline scene rendered with the add-on registered vs not: ratio must be ~1
+
+    python -m bench scratch_cost [--quick] [--res 192 128] [--spp 32] [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _modules():
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    import scratch_addon
+    from scratch_addon import materials, render, scratch_material
+
+    return scratch_addon, materials, render, scratch_material
+
+
+def _scene(material, render, osl: bool, spp: int, res):
+    scene = render.reset_scene()
+    mat = material()
+    render.studio_world(scene)
+    render.add_torus(scene, material=mat)
+    render.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)
+    render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
+    render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=osl)
+    return scene
+
+
+def main(argv: list[str]) -> int:
+    from bench._util import out_path, pyplot, report
+
+    ap = argparse.ArgumentParser(prog="python -m bench scratch_cost")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--res", type=int, nargs=2, default=(192, 128))
+    ap.add_argument("--spp", type=int, default=32)
+    ap.add_argument("--repeats", type=int, default=3)
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.res, a.spp, a.repeats = (64, 48), 8, 1
+    addon, materials, render, sm = _modules()
+    tmp = tempfile.mkdtemp(prefix="bench_scratch_cost_")
+
+    def scratch(n_layers, backend="osl", lobes=8, **spec):
+        layers = None if n_layers == 0 else dict(n_layers=n_layers, theta_deg=360, length=0.3, width=0.005, density=0.2)
+
+        def make():
+            mat = materials.new_material(f"S{n_layers}{backend}{lobes}")
+            params = sm.validate(profile=("quartic", 0.3), fresnel="aluminium", layers=layers, lobes=lobes,
+                                 base="mirror", resolution=128, slices=64, backend=backend)
+            return sm.build(mat, params, **spec)
+        return make
+
+    baseline = lambda: materials.make_brushed_material(roughness=0.35, anisotropy=0.85)  # noqa: E731
+    setups = [("baseline (SVM aniso GGX)", baseline, False)]
+    layer_counts = (1, 4) if a.quick else (1, 4, 16, 32)
+    setups += [(f"osl {n} layers", scratch(n), True) for n in layer_counts]
+    setups += [("osl 4 layers, all lobes", scratch(4, lobe_mode="all"), True)]
+    setups += [(f"svm {n} layers", scratch(n, backend="svm"), False) for n in (1, 4)]
+    if not a.quick:
+        setups += [(f"osl 4 layers, K={k}", scratch(4, lobes=k), True) for k in (1, 2, 4)]
+    # skip: the baseline scene with the add-on registered (nothing of ours in the scene)
+    setups += [("baseline, add-on registered", baseline, False)]
+
+    for _name, make, osl in setups:  # warm the table cache so timings are render-only
+        _scene(make, render, osl, 1, (8, 8))
+    times = {name: [] for name, _m, _o in setups}
+    for _ in range(a.repeats):
+        for name, make, osl in setups:
+            registered = name.endswith("registered")
+            if registered:
+                addon.register()
+            try:
+                scene = _scene(make, render, osl, a.spp, a.res)
+                _img, seconds = render.render_array(scene, tmp, "cost")
+            finally:
+                if registered:
+                    addon.unregister()
+            times[name].append(seconds)
+    base = statistics.median(times["baseline (SVM aniso GGX)"])
+    rows = [(name, statistics.median(t), statistics.median(t) / base) for name, t in times.items()]
+    notes = (f"{a.res[0]}x{a.res[1]} px, {a.spp} spp, CPU, median of {a.repeats} interleaved runs in one process. "
+             "Paper Table 2 (GPU, ms, brushed): 1/6/16/32 layers = 166/749/1850/3540 (sub-linear with culling).")
+    report("scratch_cost", ["setup", "median s", "ratio vs baseline"], rows, notes)
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    osl_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("osl") and n.endswith("layers")]
+    ax.plot([n for n, _ in osl_rows], [r for _, r in osl_rows], "o-", label="OSL (picked layer + lobe)")
+    svm_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("svm")]
+    ax.plot([n for n, _ in svm_rows], [r for _, r in svm_rows], "s-", label="SVM node group")
+    ax.axhline(1.0, color="grey", lw=0.8)
+    ax.axhline(1.3, color="red", lw=0.8, ls="--", label="target at 4 layers")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("layers")
+    ax.set_ylabel("render time / SVM aniso GGX")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out_path("scratch_cost.png"), dpi=120)
+    print(f"wrote {out_path('scratch_cost.png')}")
+    return 0
