@@ -88,6 +88,7 @@ class ShaderSpec:
     use_base: bool = True
     lobe_mode: str = "pick"                 # "pick": one hash-picked lobe (weight / probability); "all": sum
     alpha_mode: str = "footprint"           # "footprint": eq. 3 over the ray footprint; "mean": α_k = c̄(d) (tests)
+    base_pick: bool = True                  # eq. 4 by picking scratches (prob. min(ᾱ,1)) or base: one closure
     name: str = "scratch_svbrdf"
 
 
@@ -147,9 +148,8 @@ def generate(spec: ShaderSpec) -> str:
             raise ValueError(f"alpha_mode must be 'footprint' or 'mean', got {spec.alpha_mode!r}")
         alpha = _ALPHA if spec.alpha_mode == "footprint" else _ALPHA_MEAN
         body.append(alpha.replace("@CULL@", f"{ALPHA_CULL:.9g}"))
-        body.append((_COMBINE_SUMMED if summed else _COMBINE_PICKED).replace("@LAYER_LOBES@", layer_lobes))
-        if use_base:
-            body.append("    BSDF += max(1.0 - alpha_sum, 0.0) * Base;")
+        scratch = (_SCRATCH_SUMMED if summed else _SCRATCH_PICKED).replace("@LAYER_LOBES@", layer_lobes)
+        body.append(_EQ4[(use_base, spec.base_pick and use_base)].replace("@SCRATCH@", scratch))
     else:
         body.append("    // dense layer: scratches everywhere (Fig. 1a)\n    Alpha = 1.0;\n    float THETA_K[1] = {0.0};\n    {\n    int k = 0;"
                     + layer_lobes + "    BSDF = Tint * rho;\n    }")
@@ -318,6 +318,36 @@ _ALPHA = r'''
     Alpha = alpha_sum;
 '''
 
+_EQ4 = {  # (use_base, base_pick) -> eq. 4: rho = min(alpha_sum, 1) S + max(1 - alpha_sum, 0) rho_b
+    (False, False): r'''
+    if (alpha_sum > 0.0) {
+        float h_pick = h_layer;
+@SCRATCH@
+        BSDF = min(alpha_sum, 1.0) * Tint * S;
+    }
+''',
+    (True, False): r'''
+    if (alpha_sum > 0.0) {
+        float h_pick = h_layer;
+@SCRATCH@
+        BSDF = min(alpha_sum, 1.0) * Tint * S;
+    }
+    BSDF += max(1.0 - alpha_sum, 0.0) * Base;
+''',
+    (True, True): r'''
+    // one closure per shading point: scratches with probability P = min(alpha_sum, 1), else the base;
+    // weights min(alpha_sum, 1) / P = 1 and max(1 - alpha_sum, 0) / (1 - P) = 1
+    float P_s = min(alpha_sum, 1.0);
+    if (h_layer < P_s) {
+        float h_pick = h_layer / P_s;
+@SCRATCH@
+        BSDF = Tint * S;
+    } else {
+        BSDF = Base;
+    }
+''',
+}
+
 _ALPHA_MEAN = r'''
     // alpha_mode "mean": every layer at its mean coverage c̄(d) (the far-field limit of eq. 3)
     float d = clamp(Density, 0.0, 1.0);
@@ -372,29 +402,31 @@ _RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
 }
 
 
-_COMBINE_SUMMED = r'''
-    // eq. 4: all layers summed
-    float norm = 1.0 / max(alpha_sum, 1.0);
+_SCRATCH_SUMMED = r'''
+    // every layer: S = sum_k (alpha_k / alpha_sum) rho_k
+    closure color S = 0;
     for (int k = 0; k < NL; k++) {
         if (alpha[k] <= 0.0) continue;
 @LAYER_LOBES@
-        BSDF += (alpha[k] * norm) * Tint * rho;
+        S += (alpha[k] / alpha_sum) * rho;
     }
 '''
 
-_COMBINE_PICKED = r'''
-    // eq. 4 with one layer picked with probability α_k / ᾱ: weight (α_k / p_k) / max(ᾱ, 1) = min(ᾱ, 1)
-    if (alpha_sum > 0.0) {
+_SCRATCH_PICKED = r'''
+    // one layer, picked with probability alpha_k / alpha_sum (weight / probability = 1)
+    closure color S = 0;
+    {
         int k = NL - 1;
         float acc = 0.0;
         for (int j = 0; j < NL; j++) {
             acc += alpha[j];
-            if (h_layer * alpha_sum < acc) { k = j; break; }
+            if (h_pick * alpha_sum < acc) { k = j; break; }
         }
 @LAYER_LOBES@
-        BSDF += min(alpha_sum, 1.0) * Tint * rho;
+        S = rho;
     }
 '''
+
 
 
 # --- reference mode ------------------------------------------------------------------------------

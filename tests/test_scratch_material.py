@@ -158,10 +158,10 @@ def test_generated_shader_has_only_used_features(addon):
     assert "point UV" not in dense and "Voronoi" not in dense and "disk_overlap" not in dense
     colour = sm.shader_source(sm.validate(profile=prof, fresnel="gold", layers=LAYERS16, resolution=64, slices=16))
     assert "node_voronoi.h" in colour and "L0_W" in colour and "closure color Base" in colour
-    assert "h_layer * alpha_sum" in colour  # 16 layers: one picked per shading point
+    assert "h_pick * alpha_sum" in colour  # 16 layers: one picked per shading point
     few = sm.shader_source(sm.validate(profile=prof, fresnel="gold", layers=dict(LAYERS16, n_layers=2),
                                        base="none", resolution=64, slices=16))
-    assert "h_layer * alpha_sum" not in few and "closure color Base" not in few
+    assert "h_pick * alpha_sum" not in few and "closure color Base" not in few
 
 
 @pytest.mark.parametrize("params, needle", [
