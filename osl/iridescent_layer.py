@@ -21,8 +21,9 @@ Two routes (``route``):
   f_m ≈ g_m(ξ₂) δ(ξ₁) with g_m = W²|𝒟|²|η_s|² √π/(σk) sinc²(πWξ₂/λ)/(A_C λ²), and in
   direction-cosine space L = ∫∫ f L_i dξ₁dξ₂ (eq. 24).  Each shading sample draws ``samples``
   (segment, ξ₂) pairs — segment/channel stratified with probability ∝ the mass of a Cauchy
-  proxy h_c = amp_c/(1 + (ξ₂/s_c)²), s_c = λ_c/(πW) (same total mass as sinc², ratio ≤ 1.5),
-  ξ₂ from that proxy truncated to the chord of the hemisphere — and returns for each a very
+  proxy h_c = amp_c/(1 + (ξ₂/s_c)²), s_c = λ_c/(πW) (same total mass over ℝ as sinc², ratio
+  sinc²/h ≤ 1.5), ξ₂ from that Cauchy; a ξ₂ off the chord of the hemisphere (ω_i below the
+  horizon) contributes nothing — and returns for each a very
   narrow GGX lobe (α = ``LOBE_ALPHA``, normal ∝ ξ₂ b_m + (ω_i,z + ω_o,z) n, tangent t_m) whose
   reflection direction is the chosen point on the line ξ₁ = 0.  Its RGB weight is the one-sample
   MIS (balance over channels) estimate ``ΣH · g_c(ξ₂) / Σ_c' h_c'(ξ₂) / samples``.  The closure
@@ -147,8 +148,8 @@ class ReachGrid:
         return int(np.diff(self.start).max()) if self.start.size > 1 else 0
 
 
-def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS) -> ReachGrid:
-    """Build the reach grid for segments ``p0 → p1`` (M, 2) UV; cells about ``reach_uv`` wide."""
+def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: float = 1.0) -> ReachGrid:
+    """Build the reach grid for segments ``p0 → p1`` (M, 2) UV; cells about ``cell_frac·reach_uv`` wide."""
     p0, p1 = np.asarray(p0, float).reshape(-1, 2), np.asarray(p1, float).reshape(-1, 2)
     M = p0.shape[0]
     if M == 0:
@@ -156,7 +157,7 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS) -> ReachGrid
     lo = np.minimum(p0, p1).min(0) - reach_uv
     hi = np.maximum(p0, p1).max(0) + reach_uv
     ext = hi - lo
-    cell = max(reach_uv, float(np.sqrt(ext[0] * ext[1] / max_cells)) * 1.001, 1e-12)
+    cell = max(cell_frac * reach_uv, float(np.sqrt(ext[0] * ext[1] / max_cells)) * 1.001, 1e-12)
     nx, ny = (np.floor(ext / cell).astype(np.int64) + 1).tolist()
     while nx * ny > max_cells:
         cell *= 1.1
@@ -226,8 +227,17 @@ def shader_tables(spec: LayerSpec) -> dict:
     s = spec.scratches
     p0, p1 = np.asarray(s.p0, float).reshape(-1, 2), np.asarray(s.p1, float).reshape(-1, 2)
     reach_uv = REACH_SIGMA * spec.sigma_um / float(s.uv_scale_um)
-    grid = reach_grid(p0, p1, reach_uv)
-    seg = np.concatenate([p0, p1, np.asarray(s.width_um, float)[:, None], np.asarray(s.depth_um, float)[:, None]], 1)
+    grid = reach_grid(p0, p1, reach_uv, cell_frac=0.5)
+    d = p1 - p0
+    L = np.linalg.norm(d, axis=1)
+    t = d / np.where(L > 0, L, 1.0)[:, None]
+    W = np.asarray(s.width_um, float)
+    D = np.asarray(s.depth_um, float)
+    lam = np.asarray(spec.wavelengths_um, float)
+    A_C = np.pi * spec.sigma_um ** 2
+    # W²|𝒟|²/(A_C λ²) per channel (eqs. 3, 11): everything of f_m that does not depend on x or ω
+    pref = W[:, None] ** 2 * (2.0 - 2.0 * np.cos(4 * np.pi * D[:, None] / lam)) / (A_C * lam ** 2)
+    seg = np.concatenate([p0, t, (L * float(s.uv_scale_um))[:, None], W[:, None], pref], 1)
     return {"segments": seg.astype(np.float32).ravel(), "grid": grid,
             "grid_params": np.array([grid.origin[0], grid.origin[1], grid.cell, grid.nx, grid.ny], np.float64)}
 
@@ -366,28 +376,22 @@ _BODY = r'''
         float Htot = 0.0;
 #endif
         for (int j = c0; j < c1; j++) {
-            int m = CITEMS[j];
-            float du = SEG[6 * m + 2] - SEG[6 * m], dv = SEG[6 * m + 3] - SEG[6 * m + 1];
-            float Luv = hypot(du, dv);
-            if (Luv <= 0.0) continue;
-            float tu = du / Luv, tv = dv / Luv;
-            float ru = (SEG[6 * m] - UV[0]) * UV_SCALE, rv = (SEG[6 * m + 1] - UV[1]) * UV_SCALE;
+            int m = 9 * CITEMS[j];
+            float tu = SEG[m + 2], tv = SEG[m + 3];
+            float ru = (SEG[m] - UV[0]) * UV_SCALE, rv = (SEG[m + 1] - UV[1]) * UV_SCALE;
             float sb = rv * tu - ru * tv;                 // s_b (um), b = (-t_v, t_u)
-            if (abs(sb) > REACH) continue;
-            float st1 = ru * tu + rv * tv, st2 = st1 + Luv * UV_SCALE;
-            float W = SEG[6 * m + 4], D = SEG[6 * m + 5];
-            float eta = A_C * exp(-sb * sb / (SIGMA * SIGMA)) * (erf(st2 / SIGMA) - erf(st1 / SIGMA));   // eq. 10
-            rho += W / A_C * exp(-sb * sb / (2.0 * SIGMA * SIGMA)) * sqrt(M_PI / 2.0) * SIGMA
+            if (abs(sb) > REACH || SEG[m + 4] <= 0.0) continue;
+            float st1 = ru * tu + rv * tv, st2 = st1 + SEG[m + 4];
+            float W = SEG[m + 5];
+            float e2 = exp(-sb * sb / (2.0 * SIGMA * SIGMA));
+            float eta = A_C * e2 * e2 * (erf(st2 / SIGMA) - erf(st1 / SIGMA));                              // eq. 10
+            rho += W / A_C * e2 * sqrt(M_PI / 2.0) * SIGMA
                    * (erf(st2 / (M_SQRT2 * SIGMA)) - erf(st1 / (M_SQRT2 * SIGMA)));                      // eq. 17
             if (eta <= 0.0) continue;
             vector tm = tu * t + tv * b;
             vector bm = cross(n, tm);
             float ot = dot(wo, tm), ob = dot(wo, bm);
-            color pref = 0;                                  // W^2 |D|^2 |eta_s|^2 / (A_C lambda^2)
-            for (int ci = 0; ci < 3; ci++) {
-                float lam = LAM[ci];
-                pref[ci] = W * W * (2.0 - 2.0 * cos(4.0 * M_PI * D / lam)) * eta / (A_C * lam * lam);
-            }
+            color pref = eta * color(SEG[m + 6], SEG[m + 7], SEG[m + 8]);   // W^2 |D|^2 |eta_s|^2 / (A_C lambda^2)
 #if ROUTE_LIGHTS
             float c = -ot, rr = sqrt(max(0.0, 1.0 - c * c));
 #if NSPH
@@ -470,15 +474,10 @@ _BODY = r'''
             }
 #endif
 #else
-            // route A: Cauchy proxy masses on the chord xi2 in [ob - rr, ob + rr] (xi1 = 0)
-            float rr = sqrt(max(0.0, 1.0 - ot * ot));
-            float lo = ob - rr, hi = ob + rr;
-            color amp = 0, H = 0;
-            for (int c = 0; c < 3; c++) {
-                float k = M_2PI / LAM[c], s = LAM[c] / (M_PI * W);
-                amp[c] = pref[c] * sqrt(M_PI) / (SIGMA * k);
-                H[c] = amp[c] * s * (atan(hi / s) - atan(lo / s));
-            }
+            // route A: Cauchy proxy h_c = amp_c / (1 + (xi2/s_c)^2), s_c = lambda_c/(pi W), whose mass over
+            // the real line is amp_c lambda_c / W; amp_c = pref_c sqrt(pi)/(sigma k_c) (xi1 integrated out)
+            color amp = pref * color(LAM[0], LAM[1], LAM[2]) / (2.0 * sqrt(M_PI) * SIGMA);
+            color H = amp * color(LAM[0], LAM[1], LAM[2]) / W;
             float Hs = H[0] + H[1] + H[2];
             if (Hs > 0.0 && nc < MAXC) {
                 cs[nc] = m; camp[nc] = amp; cH[nc] = H; cW[nc] = W;
@@ -513,21 +512,18 @@ _BODY = r'''
                     }
                     acc += a3;
                 }
-                int m = cs[ic];
+                int m = cs[ic];   // already 9 * segment id
                 float W = cW[ic];
-                float du = SEG[6 * m + 2] - SEG[6 * m], dv = SEG[6 * m + 3] - SEG[6 * m + 1];
-                float Luv = hypot(du, dv);
-                vector tm = (du / Luv) * t + (dv / Luv) * b;
+                vector tm = SEG[m + 2] * t + SEG[m + 3] * b;
                 vector bm = cross(n, tm);
                 float ot = dot(wo, tm), ob = dot(wo, bm);
                 float rr = sqrt(max(0.0, 1.0 - ot * ot));
                 float lo = ob - rr, hi = ob + rr;
-                // xi2 from the truncated Cauchy proxy of channel ch
+                // xi2 from the Cauchy proxy of channel ch; off the hemisphere's chord: weight 0
                 float s = LAM[ch] / (M_PI * W);
-                float a0 = atan(lo / s), a1 = atan(hi / s);
                 float u1 = hashnoise(P, dot(wo, vector(41.17, 19.31, 71.53)) + 29.0 * k + 5.0 + h0);
-                float xi = s * tan(a0 + u1 * (a1 - a0));
-                xi = clamp(xi, lo, hi);
+                float xi = s * tan(M_PI * (clamp(u1, 1e-6, 1.0 - 1e-6) - 0.5));
+                if (xi <= lo || xi >= hi) continue;
                 color g = 0;
                 color am = camp[ic];
                 float hs = 0.0;

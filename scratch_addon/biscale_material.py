@@ -10,8 +10,10 @@
     for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
   - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², F0 = Color, no diffuse);
   - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
-* ``make_biscale_material``: the fitted closure mixture (``precompute.biscale_fit``) as SVM nodes
-  (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups, tangent from the UV map): works on GPU.
+* ``make_biscale_material``: ``mode="fit"``: the fitted closure mixture (``precompute.biscale_fit``)
+  as SVM nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups, tangent from the UV map): works on
+  GPU; ``mode="reference"``: the exact table importance-sampled through ``ray_portal_bsdf`` in an
+  OSL script node (``osl.biscale_reference``; OSL backend, validation renders).
 * ``bake``: the whole pipeline with an in-memory cache of ``BiscaleTile`` keyed by the mesh's
   content hash, so colour-only / material-only edits reuse visibility and N (fast path).
 """
@@ -23,7 +25,7 @@ import os
 import bpy
 import numpy as np
 
-from . import _deps
+from . import _deps, osl_compile
 from .materials import new_material
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -128,8 +130,27 @@ def get_tile(V, F, M, P, color_weights=None, **opts):
     return tile, hit
 
 
-def make_biscale_material(fit, name: str = "Bi-scale", use_tilted: bool = True) -> bpy.types.Material:
-    """Cycles material (SVM) for a ``precompute.biscale_fit.ClosureFit``."""
+MODES = ("fit", "reference")
+
+
+def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = True, mode: str = "fit",
+                          brdf=None) -> bpy.types.Material:
+    """Cycles material of a bi-scale effective BRDF.
+
+    ``mode="fit"``: the fitted closure mixture ``fit`` (``precompute.biscale_fit.ClosureFit``) as SVM
+    nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups; works on GPU).
+    ``mode="reference"``: the exact table of ``brdf`` (``precompute.biscale.EffectiveBRDF``)
+    importance-sampled by an INTERNAL OSL script node (``osl.biscale_reference``; needs the scene's
+    OSL backend, no light sampling: validation renders).  Tangent node (UV map) and UV Map node
+    wired in as for the scratch reference shader."""
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    if mode == "reference":
+        if brdf is None:
+            raise ValueError("brdf: the reference mode needs the EffectiveBRDF table")
+        return _make_reference_material(brdf, name, fit)
+    if fit is None:
+        raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale_fit.fit_closures)")
     fitmod = _deps.sibling("precompute.biscale_fit")
     group = _deps.sibling("node_groups.biscale").ensure()
     mat = new_material(name)
@@ -159,16 +180,54 @@ def make_biscale_material(fit, name: str = "Bi-scale", use_tilted: bool = True) 
         shader = add.outputs["Shader"]
     tree.links.new(shader, out.inputs["Surface"])
     mat["scratch_addon_kind"] = "biscale"
+    mat["biscale_mode"] = "fit"
     mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
     mat["biscale_fit_psnr"] = float(fit.psnr)
     return mat
 
 
+def _make_reference_material(brdf, name, fit=None):
+    ref = _deps.sibling("osl.biscale_reference")
+    src = ref.generate(brdf)              # ValueError for unsupported tables, before any datablock exists
+    mat = new_material(name)
+    tree = mat.node_tree
+    out = tree.nodes["Material Output"]
+    try:
+        script = osl_compile.script_node_from_source(tree, f"{mat.name}.biscale.osl", src)
+    except Exception:
+        bpy.data.materials.remove(mat)
+        raise
+    script.location = (0, 0)
+    uv = tree.nodes.new("ShaderNodeUVMap")         # makes Cycles export the UV attributes
+    uv.location = (-400, 150)
+    tangent = tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-400, -50)
+    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    tree.links.new(script.outputs["BSDF"], out.inputs["Surface"])
+    mat["scratch_addon_kind"] = "biscale"
+    mat["biscale_mode"] = "reference"
+    if fit is not None:
+        mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
+        mat["biscale_fit_psnr"] = float(fit.psnr)
+    return mat
+
+
 def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None, exr_dir: str | None = None,
-         **opts):
-    """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials), fitted
-    closure material applied to ``target`` (if given).  Returns (material, EffectiveBRDF, ClosureFit,
-    info dict).  ``progress(fraction)`` is called between steps."""
+         mode: str = "fit", **opts):
+    """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials) as a material
+    applied to ``target`` (if given): ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
+    the exact table importance-sampled in OSL (no fit is computed; the scene needs the OSL backend).
+    Returns (material, EffectiveBRDF, ClosureFit or None, info dict).  ``progress(fraction)`` is
+    called between steps."""
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    if mode == "reference":
+        max_res = _deps.sibling("osl.biscale_reference").MAX_DIR_RES
+        dr = opts.get("dir_res", 10)
+        if dr > max_res:
+            raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
+                             f"{max_res}, got {dr}")
     bs = _deps.sibling("precompute.biscale")
     fitmod = _deps.sibling("precompute.biscale_fit")
     cache = _deps.sibling("precompute.cache")
@@ -183,14 +242,14 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     step(0.3)
     brdf = tile.effective_brdf(materials)
     step(0.7)
-    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes)
+    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes) if mode == "fit" else None
     step(0.9)
     h = mesh_hash(V, F, M, P)
     exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
     os.makedirs(exr_dir, exist_ok=True)
     exr = os.path.join(exr_dir, f"biscale_{h}_{abs(hash(repr(materials))) % 10 ** 8}.exr")
     brdf.save_exr(exr)
-    mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}")
+    mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf)
     mat["biscale_table"] = exr
     if target is not None:
         if target.data.materials:
@@ -198,5 +257,6 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
         else:
             target.data.materials.append(mat)
     step(1.0)
-    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}
+    info = {"reused_tile": reused, "rel_l1": None if fit is None else fit.rel_l1,
+            "psnr": None if fit is None else fit.psnr, "exr": exr, "materials": materials, "mode": mode}
     return mat, brdf, fit, info

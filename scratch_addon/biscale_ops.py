@@ -108,6 +108,11 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
     n_lobes: bpy.props.IntProperty(name="Glossy Lobes", default=4, min=0, max=8)
     n_facets: bpy.props.IntProperty(name="Facets", default=10000, min=16, max=1000000)
     dir_res: bpy.props.IntProperty(name="Direction Resolution", default=10, min=4, max=24)
+    mode: bpy.props.EnumProperty(name="Mode", items=[
+        ("FIT", "Fitted Closures", "Diffuse + GGX Glossy lobes fitted to the table (SVM, GPU, light sampling)"),
+        ("REFERENCE", "Exact Reference", "The table importance-sampled in OSL through ray_portal_bsdf (CPU, no "
+                                         "light sampling, turns on the scene's OSL backend; validation only)")],
+        default="FIT")
 
     @classmethod
     def poll(cls, context):
@@ -132,14 +137,22 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
             mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes,
                                              progress=lambda f: wm.progress_update(int(100 * f)),
                                              depsgraph=context.evaluated_depsgraph_get(),
-                                             n_facets=self.n_facets, dir_res=self.dir_res)
-        except ValueError as exc:
+                                             mode=self.mode.lower(), n_facets=self.n_facets, dir_res=self.dir_res)
+        except (ValueError, RuntimeError) as exc:   # RuntimeError: OSL compile errors (OSLCompileError)
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         finally:
             wm.progress_end()
-        self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB"
-                    f"{' (tile reused)' if info['reused_tile'] else ''}")
+        reused = " (tile reused)" if info["reused_tile"] else ""
+        if fit is not None:
+            self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
+        else:
+            if not context.scene.cycles.shading_system:
+                context.scene.cycles.shading_system = True
+                self.report({"WARNING"}, f"{mat.name}: reference mode needs OSL: turned on Cycles' Open Shading "
+                                         f"Language for this scene (CPU only){reused}")
+            else:
+                self.report({"INFO"}, f"{mat.name}: exact reference (OSL){reused}")
         return {"FINISHED"}
 
 
@@ -156,7 +169,7 @@ class SCRATCH_PT_biscale(bpy.types.Panel):
         layout.operator("scratch.add_biscale_tile")
         layout.operator("scratch.bake_biscale")
         mat = context.material
-        if mat is not None and mat.get("scratch_addon_kind") == "biscale":
+        if mat is not None and mat.get("scratch_addon_kind") == "biscale" and "biscale_fit_psnr" in mat:
             layout.label(text=f"Fit: rel. L1 {mat.get('biscale_fit_rel_l1', 0):.3f}, "
                               f"PSNR {mat.get('biscale_fit_psnr', 0):.1f} dB")
 

@@ -134,8 +134,12 @@ classes = (ScratchMaterialSettings,)
 
 
 def register_pointer() -> None:
+    from .iridescence_material import SCRATCH_PG_iridescence
+
     bpy.types.Material.scratch = bpy.props.PointerProperty(type=ScratchMaterialSettings)
+    bpy.types.Material.scratch_iridescence = bpy.props.PointerProperty(type=SCRATCH_PG_iridescence)
 
 
 def unregister_pointer() -> None:
+    del bpy.types.Material.scratch_iridescence
     del bpy.types.Material.scratch

@@ -1,0 +1,190 @@
+"""Iridescent scratch layer in Cycles (osl/iridescent_layer.py via scratch_addon/iridescence_material.py).
+
+References: ``precompute.iridescence.evaluate`` (numpy, exact Si, point evaluation at 4x4 sub-pixel
+positions) for the flat-plane renders; a render of the base material alone for zero-scratch
+regions (must be bit-identical); analytic expectations (light below the horizon → 0)."""
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+
+from bench.iridescence_cycles import errors, flat_scene, light_center, numpy_reference, test_scratches as make_scratches
+from precompute import exr_io
+from precompute import iridescence as ir
+
+pytestmark = [pytest.mark.bpy]
+
+
+@pytest.fixture
+def irid(addon):
+    """(iridescence_material, iridescence_ops) of the installed extension (registered by the add-on)."""
+    import bpy
+
+    assert hasattr(bpy.types, "SCRATCH_OT_add_iridescent_layer") and hasattr(bpy.types.Material, "scratch_iridescence")
+    im = importlib.import_module(addon.__name__ + ".iridescence_material")
+    ops = importlib.import_module(addon.__name__ + ".iridescence_ops")
+    return im, ops
+
+
+@pytest.mark.render
+def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir):
+    im, _ = irid
+    S = make_scratches(im.scratch_set)
+    sc, _mat, cam = flat_scene(addon.render, im, S, route="lobes", res=32, spp=128)
+    img, _ = addon.render.render_array(sc, str(render_dir))
+    ref = numpy_reference(ir, S, cam, 32)
+    mean_err, block_err = errors(img, ref)
+    # Route A is an unbiased MC estimator of the model: per-pixel relative std at 128 spp measured
+    # ~0.15 (4 lobes/sample), so the mean over 1024 px has ~0.5 % noise; 5 % is the issue's bar and
+    # a 10 % mismatch (e.g. a missing √π or λ² factor, a mirrored frame) fails it by far.
+    assert np.all(np.abs(mean_err) < 0.05), mean_err
+    assert block_err < 0.08, block_err           # 8x8-px blocks: 64 px x 128 spp each
+    assert np.isfinite(img).all()
+
+
+@pytest.mark.render
+def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir):
+    im, _ = irid
+    S = make_scratches(im.scratch_set)
+    sc, _mat, cam = flat_scene(addon.render, im, S, route="lights", res=32, spp=4)
+    img, _ = addon.render.render_array(sc, str(render_dir))
+    ref = numpy_reference(ir, S, cam, 32)
+    mean_err, block_err = errors(img, ref)
+    # Closed forms, no light sampling: the only noise is the box filter's 4 positions per pixel vs
+    # the reference's 16, and float32 Si (|err| < 2e-6).
+    assert np.all(np.abs(mean_err) < 0.02), mean_err
+    assert block_err < 0.05, block_err
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("route", ["lobes", "lights"])
+@pytest.mark.parametrize("z", [0.02, -0.05, -1.0])
+def test_grazing_and_below_horizon_lights_are_finite(addon, irid, scene, render_dir, route, z):
+    im, _ = irid
+    S = make_scratches(im.scratch_set, count=150)
+    c = light_center() * np.array([1.0, 1.0, 0.0]) + np.array([0.0, 0.0, z])     # grazing / below the plane
+    sc, _mat, _cam = flat_scene(addon.render, im, S, route=route, res=16, spp=8, light=c, radius=0.1)
+    path = str(render_dir / "grazing.exr")
+    addon.render.render_to_file(sc, path)
+    ch, _ = exr_io.read_exr(path)
+    img = np.stack([ch[k] for k in ch if k.split(".")[-1] in "RGB"], -1)
+    assert np.isfinite(img).all()
+    assert img.min() >= 0.0
+    if z <= -0.1 - 1e-9:          # the whole sphere is below the horizon: nothing reflects
+        assert img.max() == 0.0
+
+
+@pytest.mark.render
+def test_zero_scratch_region_renders_exactly_the_base(addon, irid, scene, render_dir):
+    im, _ = irid
+    # scratches only in the left part of the view; the right columns have no segment within 3σ
+    S = make_scratches(im.scratch_set, count=80, domain=(0.40, 0.40, 0.47, 0.60))
+    sc, _m, _c = flat_scene(addon.render, im, S, route="lobes", base="metal", res=32, spp=8)
+    with_layer, _ = addon.render.render_array(sc, str(render_dir), "layer")
+    sc, _m, _c = flat_scene(addon.render, im, S, base="metal", res=32, spp=8, layer=False)
+    base, _ = addon.render.render_array(sc, str(render_dir), "base")
+    right = slice(24, 32)     # UV u > 0.5 + ... : far beyond 3σ of every segment
+    assert np.array_equal(with_layer[:, right], base[:, right])
+    assert not np.array_equal(with_layer[:, :8], base[:, :8])   # the layer does something where scratches are
+    assert np.isfinite(with_layer).all()
+
+
+def test_operators_generate_add_remove(addon, irid, scene):
+    import bpy
+
+    im, _ = irid
+    obj = addon.render.add_plane(scene)
+    mat = addon.materials.new_material("Metal")
+    glossy = mat.node_tree.nodes.new("ShaderNodeBsdfGlossy")
+    out = mat.node_tree.nodes["Material Output"]
+    mat.node_tree.links.new(glossy.outputs[0], out.inputs["Surface"])
+    obj.data.materials.append(mat)
+    bpy.context.view_layer.objects.active = obj
+    mat.scratch_iridescence.count = 40
+    assert bpy.ops.scratch.generate_scratch_set() == {"FINISHED"}
+    assert len(im.stored_scratches(mat)) == 40
+    assert bpy.ops.scratch.add_iridescent_layer() == {"FINISHED"}
+    node = im.layer_node(mat)
+    assert node is not None and node.bytecode
+    assert out.inputs["Surface"].links[0].from_node == node
+    assert node.inputs["Base"].links[0].from_node == glossy
+    assert node.inputs["UV"].is_linked and node.inputs["Tangent"].is_linked
+    src_before = node.script.as_string()
+    mat.scratch_iridescence.sigma_um = 30.0                     # parameter change regenerates the shader
+    assert "#define SIGMA 30" in node.script.as_string() and node.script.as_string() != src_before
+    mat.scratch_iridescence.count = 10
+    assert bpy.ops.scratch.generate_scratch_set() == {"FINISHED"}
+    assert "10 segments" in node.script.as_string()
+    assert bpy.ops.scratch.iridescence_preset(preset="hairline_gold") == {"FINISHED"}
+    assert len(im.stored_scratches(mat)) == im.PRESETS["hairline_gold"]["count"]
+    assert bpy.ops.scratch.remove_iridescent_layer() == {"FINISHED"}
+    assert im.layer_node(mat) is None
+    assert out.inputs["Surface"].links[0].from_node == glossy
+    assert not [n for n in mat.node_tree.nodes if n.name.startswith(im.NODE_NAME)]
+
+
+def test_layer_on_the_scratch_svbrdf_material(addon, irid, scene):
+    # works on any material, including a script node whose output is called BSDF
+    im, _ = irid
+    mat = addon.materials.new_material("Script base")
+    src = (importlib.import_module(addon.__name__ + "._deps").ROOT + "/osl/aniso_ggx.osl")
+    node0 = addon.osl_compile.script_node_from_source(mat.node_tree, "aniso.osl", open(src).read())
+    mat.node_tree.links.new(node0.outputs["BSDF"], mat.node_tree.nodes["Material Output"].inputs["Surface"])
+    S = im.generate_scratch_set(20, seed=1)
+    node = im.insert_layer(mat, S)
+    assert node.inputs["Base"].links[0].from_socket == node0.outputs["BSDF"]
+    assert im.remove_layer(mat)
+    assert mat.node_tree.nodes["Material Output"].inputs["Surface"].links[0].from_socket == node0.outputs["BSDF"]
+
+
+def test_scratches_from_curve_over_a_plane(addon, irid, scene):
+    import bpy
+
+    im, _ = irid
+    plane = addon.render.add_plane(scene, size=2.0)          # x, y in [-1, 1] → UV = (x, y)/2 + 0.5
+    mat = addon.materials.new_material("Target")
+    plane.data.materials.append(mat)
+    cu = bpy.data.curves.new("Scratch", "CURVE")
+    cu.dimensions = "3D"
+    sp = cu.splines.new("POLY")
+    pts = [(-0.5, -0.5, 0.1), (0.0, 0.2, 0.05), (0.6, 0.4, 0.2)]    # drawn slightly above the surface
+    sp.points.add(len(pts) - 1)
+    for p, co in zip(sp.points, pts):
+        p.co = (*co, 1.0)
+    curve = bpy.data.objects.new("Scratch", cu)
+    scene.collection.objects.link(curve)
+    bpy.context.view_layer.update()
+    mat.scratch_iridescence.curve_width_um = 3.0
+    res = bpy.ops.scratch.scratches_from_curve(curve=curve.name, target=plane.name)
+    assert res == {"FINISHED"}
+    S = im.stored_scratches(mat)
+    expect = np.array([[p[0] / 2 + 0.5, p[1] / 2 + 0.5] for p in pts])   # closest point = drop z
+    assert len(S) == 2
+    assert np.allclose(S.p0, expect[:-1], atol=1e-5) and np.allclose(S.p1, expect[1:], atol=1e-5)
+    assert np.allclose(S.width_um, 3.0)
+    # errors are reported, not raised
+    with pytest.raises(RuntimeError, match="curve must name a curve object"):
+        bpy.ops.scratch.scratches_from_curve(curve=plane.name, target=plane.name)
+
+
+def test_bad_parameters_raise_clear_errors(addon, irid, scene):
+    im, _ = irid
+    mat = addon.materials.new_material("Bad")
+    S = im.generate_scratch_set(5)
+    with pytest.raises(ValueError, match="sigma_um"):
+        im.insert_layer(mat, S, sigma_um=-1.0)
+    with pytest.raises(ValueError, match="route"):
+        im.insert_layer(mat, S, route="both")
+    with pytest.raises(ValueError, match="samples"):
+        im.insert_layer(mat, S, samples=0)
+    with pytest.raises(ValueError, match="no scratch set"):
+        im.insert_layer(mat)
+    with pytest.raises(ValueError, match="count"):
+        im.generate_scratch_set(-3)
+    with pytest.raises(ValueError, match="width_range_um max"):
+        im.generate_scratch_set(3, width_range_um=(2.0, 1.0))
+    with pytest.raises(ValueError, match="preset"):
+        im.apply_preset(None, "chrome")
+    assert im.layer_node(mat) is None      # nothing half-built
