@@ -1,0 +1,81 @@
+"""Layer distributions (eq. 7), the noise's mean coverage, and the lobe-table helpers (numpy only)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import nnls
+
+from osl import const_array
+from precompute import scratch_layers as sl
+from precompute.scratch_lobes import downsample_slices, nnls_batched
+
+
+@pytest.mark.parametrize("kwargs, needle", [
+    (dict(n_layers=0), "n_layers"), (dict(n_layers=65), "n_layers"), (dict(n_layers=2.0), "n_layers"),
+    (dict(theta_deg=-1), "theta_deg"), (dict(theta_deg=400), "theta_deg"),
+    (dict(density=1.5), "density"), (dict(density=float("nan")), "density"),
+    (dict(width=-1e-3), "width"), (dict(length=0.0), "length"), (dict(width=float("inf")), "width"),
+    (dict(length=0.1, width=0.2), "width"), (dict(seed=1.5), "seed"),
+])
+def test_layer_params_reject_bad_values(kwargs, needle):
+    with pytest.raises(ValueError, match=needle):
+        sl.LayerParams(**kwargs)
+
+
+@given(n=st.integers(1, 64), theta=st.floats(0, 360), seed=st.integers(-2**40, 2**40))
+@settings(max_examples=40, deadline=None)
+def test_layer_transforms_ranges_and_determinism(n, theta, seed):
+    p = sl.LayerParams(n_layers=n, theta_deg=theta, seed=seed)
+    th, xi = sl.layer_transforms(p)
+    assert th.shape == (n,) and xi.shape == (n, 2)
+    assert np.all(np.abs(th) <= math.radians(theta) / 2 + 1e-12) and np.all(np.abs(xi) <= 1)
+    th2, xi2 = sl.layer_transforms(p)
+    assert np.array_equal(th, th2) and np.array_equal(xi, xi2)
+
+
+def test_mean_coverage_limits():
+    # small d: one feature point per unit cell, disks rarely overlap -> c(d) ~ pi d^2
+    d = np.array([0.02, 0.05])
+    np.testing.assert_allclose(sl.mean_coverage(d, samples=2_000_000), math.pi * d ** 2, rtol=0.05)
+    c = sl.mean_coverage(sl.COVERAGE_D)
+    assert c[0] == 0 and np.all(np.diff(c) >= 0) and c[-1] == pytest.approx(1.0, abs=1e-3)
+    # a jittered grid overlaps less than a Poisson process of equal density, so it covers more
+    assert sl.mean_coverage(0.6) > 1 - math.exp(-math.pi * 0.36)
+    with pytest.raises(ValueError, match="density"):
+        sl.mean_coverage(-0.1)
+
+
+@given(seed=st.integers(0, 10_000), K=st.integers(1, 8), m=st.integers(8, 40))
+@settings(max_examples=30, deadline=None)
+def test_nnls_batched_matches_scipy(seed, K, m):
+    rng = np.random.default_rng(seed)
+    A = rng.random((3, m, K))
+    b = rng.random((3, m)) - 0.2
+    x = nnls_batched(A, b, iters=2000)
+    for i in range(3):
+        ref, _ = nnls(A[i], b[i])
+        r_ours = np.linalg.norm(A[i] @ x[i] - b[i])
+        r_ref = np.linalg.norm(A[i] @ ref - b[i])
+        assert np.all(x[i] >= 0) and r_ours <= r_ref * (1 + 1e-4) + 1e-9
+
+
+def test_downsample_slices_preserves_means_and_rejects_bad_counts():
+    rho = np.random.default_rng(1).random((16, 16, 3))
+    d = downsample_slices(rho, 4)
+    assert d.shape == (4, 16, 3)
+    np.testing.assert_allclose(d.mean(0), rho.mean(0))
+    with pytest.raises(ValueError, match="slices"):
+        downsample_slices(rho, 5)
+
+
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=1, max_size=20))
+@settings(max_examples=50, deadline=None)
+def test_const_array_literals_round_trip_float32(values):
+    text = const_array("X", values)
+    body = text[text.index("{") + 1:text.rindex("}")]
+    parsed = np.array([float(v) for v in body.replace("\n", " ").split(",")], np.float32)
+    assert np.array_equal(parsed, np.array(values, np.float32))
