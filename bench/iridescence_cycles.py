@@ -1,11 +1,17 @@
 """Iridescent scratch layer in Cycles: route A (lobes) vs route B (closed-form lights) vs base alone.
 
-Flat UV-mapped plane, oblique orthographic camera, one small sphere light (Cycles point light
-with radius, soft falloff off), box pixel filter.  Reference: ``precompute.iridescence.evaluate``
-(point evaluation, exact Si) at 4x4 sub-pixel positions per pixel, times the light's radiance.
-Per route: render time at equal spp (median of 3, all in one run, so the ratios share the machine
-state), ratio to the base material alone (a metallic GGX, roughness 0.2), relative error of the
-image mean per channel and the relative L1 error of 8x8-pixel block means.
+Two scenes, each with all its renders interleaved in one run (median of 3), so the ratios share
+the machine state:
+
+* dense: flat UV-mapped plane, oblique orthographic camera, one small sphere light (Cycles point
+  light with radius, soft falloff off), box pixel filter, 1200 segments (~50 within 3σ of every
+  pixel).  Reference: ``precompute.iridescence.evaluate`` (point evaluation, exact Si) at 4x4
+  sub-pixel positions per pixel, times the light's radiance.  Errors of the scratch part alone:
+  image mean per channel, relative L1 of 8x8-pixel block means, per-pixel RMSE at equal spp and
+  at equal time.
+* plate (representative): the README figure's scene (``bench.iridescence_fig.plate_scene``).
+
+Per setup: render time at equal spp and its ratio to the base material alone (metallic GGX).
 
 Run: ``.venv/bin/python -m bench iridescence_cycles [--quick]``.
 The scene helpers (``flat_scene``, ``numpy_reference``) are shared with tests/test_iridescence_blender.py.
@@ -39,7 +45,7 @@ def test_scratches(scratch_set_mod, count=300, seed=1, uv_scale_um=2e4, domain=(
 
 
 def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=16, seed=1,
-               light=None, radius=0.1, energy=1000.0, samples=4, layer=True):
+               light=None, radius=0.1, energy=1000.0, samples=1, candidates=4, layer=True):
     """Reset the file and build the flat validation scene; returns (scene, material, camera matrix 4x4).
 
     ``base``: None (no base closure), "metal" (metallic Principled, roughness 0.2).
@@ -60,7 +66,7 @@ def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=1
     if layer:
         c = light_center() if light is None else np.asarray(light, float)
         _add_point_light(scene, c, radius, energy)
-        im.insert_layer(mat, scratches, route=route, samples=samples, scene=scene)
+        im.insert_layer(mat, scratches, route=route, samples=samples, candidates=candidates, scene=scene)
     render.add_plane(scene, size=PLANE_SIZE, material=mat)
     cam_dir = np.array([0.0, -math.sin(CAM_THETA), math.cos(CAM_THETA)])
     cam = render.add_camera(scene, location=tuple(5 * cam_dir), target=(0, 0, 0), ortho_scale=ORTHO)
@@ -130,56 +136,101 @@ def _setup():
     return render, im
 
 
+def _timed_runs(configs, build, reps, tmp):
+    """Interleaved renders: for each of ``reps`` rounds, every config in turn (build, then render).
+    Returns {name: (median seconds, last image)}."""
+    import statistics
+
+    times, imgs = {n: [] for n, _ in configs}, {}
+    for rep in range(reps):
+        for name, kw in configs:
+            scene = build(**kw)
+            img, sec = _render_array(scene, tmp, name)
+            times[name].append(sec)
+            imgs[name] = img
+    return {n: (statistics.median(times[n]), imgs[n]) for n, _ in configs}
+
+
+def _render_array(scene, tmp, name):
+    from scratch_addon import render
+
+    return render.render_array(scene, tmp, name.replace(" ", "_").replace("+", "p"))
+
+
 def main(argv) -> int:
     from bench._util import out_path, pyplot, report
+    from bench.iridescence_fig import plate_scene, plate_scratches
     from precompute import iridescence as ir
 
     quick = "--quick" in argv
     render, im = _setup()
+    reps = 1 if quick else 3
     res = 32 if quick else 64
     spp = 64 if quick else 256
-    S = test_scratches(im.scratch_set, count=300 if quick else 1200,
-                       domain=(0.4, 0.4, 0.6, 0.6))
+    S = test_scratches(im.scratch_set, count=300 if quick else 1200, domain=(0.4, 0.4, 0.6, 0.6))
     tmp = tempfile.mkdtemp()
-    rows, imgs = [], {}
-    times = {}
-    configs = [("base alone", dict(layer=False, base="metal")),
-               ("A lobes + base", dict(route="lobes", base="metal")),
-               ("B lights + base", dict(route="lights", base="metal")),
-               ("A lobes only", dict(route="lobes")),
-               ("B lights only", dict(route="lights"))]
-    for name, kw in configs:
-        scene, mat, cam = flat_scene(render, im, S, res=res, spp=spp, **kw)
-        ts = []
-        for rep in range(3):
-            img, sec = render.render_array(scene, tmp, f"r{rep}")
-            ts.append(sec)
-        times[name] = statistics.median(ts)
-        imgs[name] = img
-        if name == "base alone":
-            cam_ref = cam
-    ref = numpy_reference(ir, S, cam_ref, res)
-    for name, _kw in configs:
-        img = imgs[name]
-        row = [name, times[name], times[name] / times["base alone"]]
+    # (name, flat_scene kwargs); "old" = the previous defaults: every segment in reach, 4 lobes per sample
+    A, A_old = dict(route="lobes"), dict(route="lobes", candidates=0, samples=4)
+    B, B_old = dict(route="lights"), dict(route="lights", candidates=0)
+    dense = [("base alone", dict(layer=False, base="metal")),
+             ("A + base", dict(A, base="metal")), ("A old + base", dict(A_old, base="metal")),
+             ("B + base", dict(B, base="metal")), ("B old + base", dict(B_old, base="metal")),
+             ("A only", A), ("A old only", A_old), ("B only", B), ("B old only", B_old)]
+    cam = {}
+
+    def build_dense(**kw):
+        scene, _mat, cam["m"] = flat_scene(render, im, S, res=res, spp=spp, **kw)
+        return scene
+
+    rd = _timed_runs(dense, build_dense, reps, tmp)
+    ref = numpy_reference(ir, S, cam["m"], res)
+    t_base, t_a_old = rd["base alone"][0], rd["A old only"][0]
+    rows = []
+    for name, _kw in dense:
+        t, img = rd[name]
+        row = ["dense", name, t, t / t_base]
         if name.endswith("only"):
             me, be = errors(img, ref)
-            row += [f"{np.abs(me).max() * 100:.2f}", f"{be * 100:.2f}", bool(np.isfinite(img).all())]
+            rmse = float(np.sqrt(np.mean((img - ref) ** 2)) / ref.mean())
+            row += [f"{np.abs(me).max() * 100:.2f}", f"{be * 100:.2f}", f"{rmse:.3f}",
+                    f"{rmse * math.sqrt(t / t_a_old):.3f}"]
         else:
-            row += ["", "", bool(np.isfinite(img).all())]
-        rows.append(row)
-    notes = (f"{res}x{res} px, {spp} spp, {len(S)} segments, sphere light r = 0.1 m at 2 m, box filter; "
-             "error = image mean per channel (max over RGB) and relative L1 of 8x8 block means, vs numpy "
-             "`evaluate` (4x4 sub-pixel point evaluations, exact Si). Route B is deterministic (no light "
-             "sampling), route A's error is Monte Carlo noise + bias.")
-    report("iridescence_cycles", ["setup", "render s (median of 3)", "× base", "mean err %", "block L1 %", "finite"],
-           rows, notes)
+            row += ["", "", "", ""]
+        rows.append(row + [bool(np.isfinite(img).all())])
+    # representative scene: the README figure's plate (6000 segments, dim world + small sphere light)
+    Sp = plate_scratches(im)
+    fres, fspp = ((64, 48), 16) if quick else ((128, 96), 64)
+    plate = [("base alone", dict(layer=False)), ("A + base", dict(route="lobes")),
+             ("A old + base", dict(route="lobes", candidates=0, samples=4)),
+             ("B + base", dict(route="lights")), ("B old + base", dict(route="lights", candidates=0))]
+    rp = _timed_runs(plate, lambda **kw: plate_scene(render, im, Sp, res=fres, spp=fspp, **kw), reps, tmp)
+    for name, _kw in plate:
+        t, img = rp[name]
+        rows.append(["plate", name, t, t / rp["base alone"][0], "", "", "", "", bool(np.isfinite(img).all())])
+    notes = (f"dense: flat plane, orthographic, {res}x{res} px, {spp} spp, {len(S)} segments (~50 within 3σ of "
+             f"every pixel), sphere light r = 0.1 m at 2 m, box filter.  plate (representative, the README "
+             f"figure's scene): {fres[0]}x{fres[1]} px, {fspp} spp, {len(Sp)} segments over a 2 m plate, dim "
+             "studio world + sphere light r = 0.05 m, perspective.  All renders of a table interleaved in one run "
+             f"(median of {reps}); × base = render time / base material alone in the same scene.  A/B = "
+             "defaults (4 RIS candidates per sample, route A 1 lobe); 'old' = every segment in reach "
+             "(route A 4 lobes, the previous defaults).  Errors ('only' rows, scratch part without base) vs "
+             "numpy `evaluate` (4x4 sub-pixel point evaluations, exact Si): image mean (max over RGB), relative "
+             "L1 of 8x8 block means, per-pixel RMSE / mean at equal spp, and the same scaled to the render time "
+             "of 'A old only' (RMSE·√(t/t_A_old): equal-time error, lower is better; it includes the "
+             "reference's own 16-point pixel integration, which is about what 'B old' shows).")
+    report("iridescence_cycles", ["scene", "setup", "render s", "× base", "mean err %", "block L1 %",
+                                  "pixel RMSE", "equal-time RMSE", "finite"], rows, notes)
     plt = pyplot()
-    fig, ax = plt.subplots(1, 3, figsize=(10, 3.6))
+    fig, ax = plt.subplots(1, 5, figsize=(16, 3.6))
     vmax = float(np.percentile(ref, 99.5))
-    for a, (title, im_) in zip(ax, [("numpy reference", ref), ("A: lobes", imgs["A lobes only"]),
-                                    ("B: closed-form lights", imgs["B lights only"])]):
+    for a, (title, im_) in zip(ax[:3], [("numpy reference", ref), ("A (RIS, 1 lobe)", rd["A only"][1]),
+                                        ("B (RIS, closed forms)", rd["B only"][1])]):
         a.imshow(np.clip(im_ / vmax, 0, 1) ** (1 / 2.2))
+        a.set_title(title)
+        a.axis("off")
+    pv = float(np.percentile(rp["A + base"][1], 99.5))
+    for a, (title, im_) in zip(ax[3:], [("plate: base alone", rp["base alone"][1]), ("plate: A + base", rp["A + base"][1])]):
+        a.imshow(np.clip(im_ / pv, 0, 1) ** (1 / 2.2))
         a.set_title(title)
         a.axis("off")
     fig.tight_layout()

@@ -3,6 +3,7 @@ et al. 2018, Fig. 1 right / Fig. 10), rendered in Cycles with the layer's defaul
 
 Writes docs/img/iridescence_render.png (and bench/out/iridescence_render.png) and prints the
 render time.  Run: ``.venv/bin/python -m bench iridescence_fig [--quick]``.
+``plate_scene`` is also the representative scene of ``bench/iridescence_cycles.py``.
 """
 from __future__ import annotations
 
@@ -13,12 +14,16 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "img"
 
 
-def main(argv) -> int:
-    from bench._util import out_path
-    from bench.iridescence_cycles import _setup
+def plate_scratches(im, count=6000):
+    """6000 isotropic segments over a 2 m plate = 2 cm of steel (uv_scale 2e4 µm per UV)."""
+    return im.generate_scratch_set(count, length_range=(0.05, 0.3), width_range_um=(0.8, 6.0),
+                                   depth_range_um=(0.8, 6.0), spread_deg=180.0, seed=7, uv_scale_um=2e4)
 
-    quick = "--quick" in argv
-    render, im = _setup()
+
+def plate_scene(render, im, S, *, res=(128, 96), spp=64, layer=True, route="lobes", samples=1, candidates=4,
+                seed=0):
+    """Steel plate (metallic Principled, roughness 0.03), dim studio world, small sphere light,
+    perspective camera; with ``layer`` the iridescent layer sits on the steel.  Returns the scene."""
     import bpy
 
     scene = render.reset_scene()
@@ -31,11 +36,6 @@ def main(argv) -> int:
     base.inputs["Metallic"].default_value = 1.0
     base.inputs["Roughness"].default_value = 0.03
     tree.links.new(base.outputs[0], out.inputs["Surface"])
-    # 2 m plate = 2 cm of steel (uv_scale 2e4 µm per UV): σ = 60 µm ≈ one pixel at 320 px
-    S = im.generate_scratch_set(6000, length_range=(0.05, 0.3), width_range_um=(0.8, 6.0), depth_range_um=(0.8, 6.0),
-                                spread_deg=180.0, seed=7, uv_scale_um=2e4)
-    im.insert_layer(mat, S, route="lobes", samples=4)
-    render.add_plane(scene, size=2.0, material=mat)
     render.studio_world(scene, strength=0.05)
     light = bpy.data.lights.new("Sphere", "POINT")
     light.energy = 300.0
@@ -44,10 +44,25 @@ def main(argv) -> int:
     lo = bpy.data.objects.new("Sphere", light)
     scene.collection.objects.link(lo)
     lo.location = (0.3, 1.6, 1.2)
+    bpy.context.view_layer.update()
+    if layer:
+        im.insert_layer(mat, S, route=route, scene=scene, samples=samples, candidates=candidates)
+    render.add_plane(scene, size=2.0, material=mat)
     render.add_camera(scene, location=(0.0, -2.2, 1.6), target=(0.0, 0.1, 0.0), lens=40.0)
+    render.configure_cycles(scene, samples=spp, res=res, seed=seed, osl=True, max_bounces=4)
+    return scene
+
+
+def main(argv) -> int:
+    from bench._util import out_path
+    from bench.iridescence_cycles import _setup
+
+    quick = "--quick" in argv
+    render, im = _setup()
+    S = plate_scratches(im)
     res = (160, 120) if quick else (480, 360)
     spp = 32 if quick else 128
-    render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=True, max_bounces=4)
+    scene = plate_scene(render, im, S, res=res, spp=spp)
     scene.view_settings.view_transform = "AgX"
     tmp = Path(tempfile.mkdtemp()) / "iridescence_render.png"
     seconds = render.render_to_file(scene, str(tmp))

@@ -19,7 +19,7 @@ Two routes (``route``):
 
 ``"lobes"`` (A, default) — the Gaussian in ξ₁ is far narrower than any light (eq. 26), so
   f_m ≈ g_m(ξ₂) δ(ξ₁) with g_m = W²|𝒟|²|η_s|² √π/(σk) sinc²(πWξ₂/λ)/(A_C λ²), and in
-  direction-cosine space L = ∫∫ f L_i dξ₁dξ₂ (eq. 24).  Each shading sample draws ``samples``
+  direction-cosine space L = ∫∫ f L_i dξ₁dξ₂ (eq. 24).  Each shading sample draws ``samples`` (default 1)
   (segment, ξ₂) pairs — segment/channel stratified with probability ∝ the mass of a Cauchy
   proxy h_c = amp_c/(1 + (ξ₂/s_c)²), s_c = λ_c/(πW) (same total mass over ℝ as sinc², ratio
   sinc²/h ≤ 1.5), ξ₂ from that Cauchy; a ξ₂ off the chord of the hemisphere (ω_i below the
@@ -38,6 +38,14 @@ Two routes (``route``):
   counting with the lights it also samples for the base), BSDF rays cannot bounce off it, and
   the material must use ``emission_sampling = 'NONE'`` so the object is not sampled as a light.
   No shadows, no world light, no indirect light in the scratches; light edits need a rebuild.
+
+Segment selection (``candidates``, both routes): 0 = every segment listed in the shading point's
+reach-grid cell (exact; cost ∝ scratch density).  N > 0 (default 4) = N stratified draws from the
+cell's point-independent bound distribution (``candidate_weights``: upper bounds of |η_s|² and ρ_m
+over the cell, quantised to exact integer probabilities packed with the segment index), each
+evaluated exactly and weighted 1/(N p): route A resamples the lobes among them by their proxy mass
+(RIS, Rtot = Σ r_i replaces ΣH), route B sums their closed forms, ρ̂ = Σ ρ_i/(N p_i).  All three
+are unbiased (tests/test_iridescent_layer_osl.py replays the stage in numpy); cost is O(N log n).
 
 Shading points whose reach-grid cell is empty (no segment within 3σ of any point of the cell)
 do one table lookup and return ``Base`` unchanged.
@@ -134,7 +142,7 @@ def _check_lights(lights):
 @dataclass
 class ReachGrid:
     """Uniform UV grid; cell ``iy*nx + ix`` lists every segment within ``reach_uv`` of *some* point
-    of the cell (conservative), so the shader needs exactly one cell per shading point."""
+    of the cell (exact segment-box distance), so the shader needs exactly one cell per shading point."""
 
     origin: np.ndarray
     cell: float
@@ -146,6 +154,34 @@ class ReachGrid:
     @property
     def max_per_cell(self) -> int:
         return int(np.diff(self.start).max()) if self.start.size > 1 else 0
+
+
+def segment_box_distance(p0, p1, lo, hi) -> np.ndarray:
+    """Euclidean distance between segments p0 → p1 and axis-aligned boxes [lo, hi] (all (K, 2)); 0 if they meet."""
+    d = p1 - p0
+    # slab test: does the segment meet the box?
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta, tb = (lo - p0) * inv, (hi - p0) * inv
+    par = d == 0
+    inside_par = (p0 >= lo) & (p0 <= hi)
+    t_enter = np.where(par, np.where(inside_par, -np.inf, np.inf), np.minimum(ta, tb)).max(1)
+    t_exit = np.where(par, np.where(inside_par, np.inf, -np.inf), np.maximum(ta, tb)).min(1)
+    meets = (t_enter <= t_exit) & (t_exit >= 0.0) & (t_enter <= 1.0)
+
+    def pt_box(q):
+        return np.linalg.norm(q - np.clip(q, lo, hi), axis=1)
+
+    def pt_seg(q):
+        L2 = np.sum(d * d, 1)
+        t = np.clip(np.sum((q - p0) * d, 1) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        return np.linalg.norm(q - (p0 + t[:, None] * d), axis=1)
+
+    corners = [lo, hi, np.stack([lo[:, 0], hi[:, 1]], 1), np.stack([hi[:, 0], lo[:, 1]], 1)]
+    dist = np.minimum(pt_box(p0), pt_box(p1))
+    for c in corners:
+        dist = np.minimum(dist, pt_seg(c))
+    return np.where(meets, 0.0, dist)
 
 
 def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: float = 1.0) -> ReachGrid:
@@ -172,12 +208,9 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: f
     k = np.arange(sid.size) - np.repeat(np.cumsum(n) - n, n)
     cx = blo[sid, 0] + k % span[sid, 0]
     cy = blo[sid, 1] + k // span[sid, 0]
-    centre = lo + (np.stack([cx, cy], 1) + 0.5) * cell
-    d = p1[sid] - p0[sid]
-    L2 = np.sum(d * d, 1)
-    tt = np.clip(np.sum((centre - p0[sid]) * d, 1) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
-    dist = np.linalg.norm(centre - (p0[sid] + tt[:, None] * d), axis=1)
-    keep = dist <= reach_uv + 0.5 * np.sqrt(2.0) * cell * (1 + 1e-9)
+    corner = lo + np.stack([cx, cy], 1) * cell
+    dist = segment_box_distance(p0[sid], p1[sid], corner, corner + cell)
+    keep = dist <= reach_uv * (1 + 1e-9) + 1e-12
     cid = (cy * nx + cx)[keep]
     sid = sid[keep]
     order = np.argsort(cid, kind="stable")
@@ -189,16 +222,22 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: f
 @dataclass
 class LayerSpec:
     """Inputs of ``generate``.  ``scratches``: a ``precompute.scratch_set.ScratchSet`` (or any
-    object with p0, p1 (M, 2) UV, width_um, depth_um (M,), uv_scale_um)."""
+    object with p0, p1 (M, 2) UV, width_um, depth_um (M,), uv_scale_um).
+
+    ``candidates``: segments visited per shading sample.  0 = every segment of the reach-grid cell
+    (exhaustive; cost grows with the scratch density); N > 0 = N segments drawn from the cell's
+    bound distribution (``shader_tables``) and resampled by their exact weight (RIS), an unbiased
+    estimator whose cost does not depend on the density.  ``samples``: route A lobes per sample."""
 
     scratches: object
     sigma_um: float = SIGMA_UM
     route: str = "lobes"
     lights: list = field(default_factory=list)
-    samples: int = 4                 # route A: (segment, ξ₂) lobes per shading sample
+    samples: int = 1                 # route A: (segment, ξ₂) lobes per shading sample
     base_blend: bool = True          # (1 − ρ)·Base (eq. 6) instead of Base
     wavelengths_um: tuple = RGB_WAVELENGTHS_UM
     name: str = "iridescent_layer"
+    candidates: int = 4              # 0 = exhaustive, else RIS candidates per shading sample
 
     def validate(self) -> "LayerSpec":
         s = self.scratches
@@ -213,6 +252,9 @@ class LayerSpec:
             raise ValueError(f"route must be one of {', '.join(ROUTES)}; got {self.route!r}")
         if isinstance(self.samples, bool) or not isinstance(self.samples, (int, np.integer)) or not 1 <= self.samples <= 32:
             raise ValueError(f"samples must be an integer in [1, 32], got {self.samples!r}")
+        if (isinstance(self.candidates, bool) or not isinstance(self.candidates, (int, np.integer))
+                or not 0 <= self.candidates <= MAX_CANDIDATES):
+            raise ValueError(f"candidates must be an integer in [0, {MAX_CANDIDATES}] (0 = all), got {self.candidates!r}")
         lam = np.asarray(self.wavelengths_um, float)
         if lam.shape != (3,) or np.any(lam < 0.2) or np.any(lam > 2.0):
             raise ValueError("wavelengths_um must be 3 wavelengths in [0.2, 2.0] micrometres")
@@ -222,24 +264,116 @@ class LayerSpec:
         return self
 
 
-def shader_tables(spec: LayerSpec) -> dict:
-    """The constant arrays of the generated shader (flat segment table, reach grid)."""
+#: Columns of the shader's per-segment table (everything that does not depend on the shading point).
+SEG_COLUMNS = ("t_u", "t_v", "c_t", "c_b", "L_um", "W_um", "Hbar_r", "Hbar_g", "Hbar_b", "Hbar_sum", "rho_coef",
+               "pref_r", "pref_g", "pref_b")
+NS = len(SEG_COLUMNS)
+MAX_CANDIDATES = 64
+#: Defensive share of the uniform distribution in each cell's candidate distribution (bounds 1/p).
+UNIFORM_MIX = 0.02
+#: Reach-grid cell size in units of the reach (3σ): smaller = tighter candidate bounds, larger tables.
+CELL_FRAC = 1.5
+
+
+def segment_terms(spec: LayerSpec) -> dict:
+    """Point-independent per-segment terms (µm; eqs. 3, 10, 11, 17), float64, each (M,) or (M, 3).
+
+    ``pref`` = W²|𝒟|²/(A_C λ²) (f_m per unit |η_s|² before the angular factor); route A's Cauchy
+    proxy of channel c has amplitude ``amp_c = η·pref_c λ_c/(2√π σ)`` (ξ₁ integrated out) and mass
+    ``H_c = amp_c λ_c / W`` = η·``Hbar_c``; ρ_m = ``rho_coef``·e^{−s_b²/2σ²}[erf(s_t2/√2σ) − erf(s_t1/√2σ)]."""
     s = spec.scratches
-    p0, p1 = np.asarray(s.p0, float).reshape(-1, 2), np.asarray(s.p1, float).reshape(-1, 2)
-    reach_uv = REACH_SIGMA * spec.sigma_um / float(s.uv_scale_um)
-    grid = reach_grid(p0, p1, reach_uv, cell_frac=0.5)
+    sc = float(s.uv_scale_um)
+    p0, p1 = np.asarray(s.p0, float).reshape(-1, 2) * sc, np.asarray(s.p1, float).reshape(-1, 2) * sc
     d = p1 - p0
     L = np.linalg.norm(d, axis=1)
     t = d / np.where(L > 0, L, 1.0)[:, None]
     W = np.asarray(s.width_um, float)
     D = np.asarray(s.depth_um, float)
     lam = np.asarray(spec.wavelengths_um, float)
-    A_C = np.pi * spec.sigma_um ** 2
-    # W²|𝒟|²/(A_C λ²) per channel (eqs. 3, 11): everything of f_m that does not depend on x or ω
+    sig = float(spec.sigma_um)
+    A_C = np.pi * sig ** 2
     pref = W[:, None] ** 2 * (2.0 - 2.0 * np.cos(4 * np.pi * D[:, None] / lam)) / (A_C * lam ** 2)
-    seg = np.concatenate([p0, t, (L * float(s.uv_scale_um))[:, None], W[:, None], pref], 1)
-    return {"segments": seg.astype(np.float32).ravel(), "grid": grid,
-            "grid_params": np.array([grid.origin[0], grid.origin[1], grid.cell, grid.nx, grid.ny], np.float64)}
+    amp_bar = pref * lam / (2.0 * np.sqrt(np.pi) * sig)
+    Hbar = amp_bar * lam / np.where(W > 0, W, 1.0)[:, None]
+    return dict(t=t, c_t=np.sum(p0 * t, 1), c_b=p0[:, 1] * t[:, 0] - p0[:, 0] * t[:, 1], L=L, W=W, Hbar=Hbar,
+                rho_coef=W / A_C * np.sqrt(np.pi / 2.0) * sig, pref=pref)
+
+
+def candidate_weights(spec: LayerSpec, terms: dict, grid: "ReachGrid") -> np.ndarray:
+    """Per grid item (cell, segment): the cell's candidate probability p (sums to 1 per cell).
+
+    Bound of the segment's weight over the cell: with d = distance cell (box) ↔ segment,
+    |η_s|² ≤ A_C min(2, 2L/(√π σ)) e^{−d²/σ²} (erf slope ≤ 2/√π; erfc(x) ≤ e^{−x²} off the ends) and
+    ρ_m ≤ rho_coef·min(2, 2L/(√(2π) σ)) e^{−d²/2σ²}.  p = (1 − ε)·½(η-bound share + ρ-bound share)
+    + ε/n (ρ term only with ``base_blend``), so 1/p ≤ n/ε."""
+    if grid.items.size == 0:
+        return np.zeros(0)
+    sc = float(spec.scratches.uv_scale_um)
+    sig = float(spec.sigma_um)
+    cid = np.repeat(np.arange(grid.nx * grid.ny), np.diff(grid.start))
+    m = grid.items
+    corner = (grid.origin + np.stack([cid % grid.nx, cid // grid.nx], 1) * grid.cell) * sc
+    p0 = np.asarray(spec.scratches.p0, float).reshape(-1, 2)[m] * sc
+    p1 = np.asarray(spec.scratches.p1, float).reshape(-1, 2)[m] * sc
+    d = segment_box_distance(p0, p1, corner, corner + grid.cell * sc)
+    L = terms["L"][m]
+    b_eta = np.pi * sig ** 2 * np.minimum(2.0, 2.0 * L / (np.sqrt(np.pi) * sig)) * np.exp(-(d / sig) ** 2) \
+        * terms["Hbar"][m].sum(1)
+    b_rho = terms["rho_coef"][m] * np.minimum(2.0, 2.0 * L / (np.sqrt(2 * np.pi) * sig)) * np.exp(-0.5 * (d / sig) ** 2)
+    n = np.diff(grid.start)[cid].astype(float)
+
+    def share(b):
+        tot = np.bincount(cid, weights=b, minlength=grid.nx * grid.ny)[cid]
+        return np.where(tot > 0, b / np.where(tot > 0, tot, 1.0), 1.0 / n)
+
+    p = 0.5 * (share(b_eta) + share(b_rho)) if spec.base_blend else share(b_eta)
+    return (1.0 - UNIFORM_MIX) * p + UNIFORM_MIX / n
+
+
+def quantize_cells(p, start, qbits: int) -> np.ndarray:
+    """Integer quanta per item (≥ 1 each, exactly 2**qbits per non-empty cell, ∝ ``p`` otherwise), so the
+    shader's probabilities are exact integers / 2**qbits (largest-remainder rounding per cell)."""
+    Q = 1 << qbits
+    n_cell = np.diff(start)
+    if p.size == 0:
+        return np.zeros(0, np.int64)
+    if n_cell.max() > Q // 4:
+        raise ValueError(f"scratches: {n_cell.max()} segments within reach of one grid cell (at most {Q // 4} "
+                         "with this many segments); use fewer segments or a smaller sigma_um")
+    cid = np.repeat(np.arange(n_cell.size), n_cell)
+    x = p * (Q - n_cell[cid])
+    c = 1 + np.floor(x).astype(np.int64)
+    rem = Q - np.bincount(cid, weights=c, minlength=n_cell.size).astype(np.int64)      # < n per cell
+    order = np.lexsort((-(x - np.floor(x)), cid))                                       # by cell, then frac desc
+    rank = np.arange(p.size) - start[cid[order]]
+    c[order] += (rank < rem[cid[order]]).astype(np.int64)
+    return c
+
+
+def shader_tables(spec: LayerSpec, cell_frac: float = CELL_FRAC) -> dict:
+    """The constant arrays of the generated shader: the flat segment table (``SEG_COLUMNS``, float32)
+    and the reach grid (segments with L = 0 dropped: they contribute nothing) whose items are packed
+    ints ``segment << QBITS | e`` where e is the inclusive end of the item's range of quanta in its
+    cell's candidate distribution (``candidate_weights``, quantised by ``quantize_cells``)."""
+    s = spec.scratches
+    terms = segment_terms(spec)
+    keep = terms["L"] > 0
+    p0, p1 = np.asarray(s.p0, float).reshape(-1, 2), np.asarray(s.p1, float).reshape(-1, 2)
+    reach_uv = REACH_SIGMA * spec.sigma_um / float(s.uv_scale_um)
+    idx = np.nonzero(keep)[0]
+    grid = reach_grid(p0[idx], p1[idx], reach_uv, cell_frac=cell_frac)
+    grid.items = idx[grid.items]
+    qbits = 31 - max(1, int(np.ceil(np.log2(max(len(terms["L"]), 2)))))
+    q = quantize_cells(candidate_weights(spec, terms, grid), grid.start, qbits)
+    cid = np.repeat(np.arange(grid.nx * grid.ny), np.diff(grid.start))
+    end = np.cumsum(q) - np.concatenate([[0], np.cumsum(q)])[grid.start[cid]] - 1
+    packed = (grid.items.astype(np.int64) << qbits) | end
+    seg = np.concatenate([terms["t"], terms["c_t"][:, None], terms["c_b"][:, None], terms["L"][:, None],
+                          terms["W"][:, None], terms["Hbar"], terms["Hbar"].sum(1)[:, None],
+                          terms["rho_coef"][:, None], terms["pref"]], 1)
+    assert seg.shape[1] == NS
+    return {"segments": seg.astype(np.float32).ravel(), "grid": grid, "packed": packed, "qbits": qbits,
+            "quanta": q, "grid_params": np.array([grid.origin[0], grid.origin[1], grid.cell, grid.nx, grid.ny])}
 
 
 def generate(spec: LayerSpec) -> str:
@@ -248,6 +382,7 @@ def generate(spec: LayerSpec) -> str:
     tab = shader_tables(spec)
     grid = tab["grid"]
     maxc = max(grid.max_per_cell, 1)
+    nstore = int(spec.candidates) if spec.candidates > 0 else maxc
     lights = spec.lights if spec.route == "lights" else []
     spheres = [L for L in lights if isinstance(L, SphereLightSpec)]
     polys = [L for L in lights if isinstance(L, PolygonLightSpec)]
@@ -258,7 +393,10 @@ def generate(spec: LayerSpec) -> str:
            f"#define SIGMA {spec.sigma_um:.9g}",
            f"#define UV_SCALE {float(spec.scratches.uv_scale_um):.9g}",
            f"#define REACH {REACH_SIGMA * spec.sigma_um:.9g}",
-           f"#define MAXC {maxc}",
+           f"#define NS {NS}",
+           f"#define QBITS {tab['qbits']}\n#define QMASK {(1 << tab['qbits']) - 1}",
+           f"#define NCAND {int(spec.candidates)}",
+           f"#define NSTORE {nstore}",
            f"#define KS {int(spec.samples)}",
            f"#define LOBE_ALPHA {LOBE_ALPHA:.9g}",
            f"#define GO_U {grid.origin[0]:.9g}\n#define GO_V {grid.origin[1]:.9g}\n#define CELL {grid.cell:.9g}",
@@ -276,8 +414,8 @@ def generate(spec: LayerSpec) -> str:
                "    output closure color BSDF = 0)\n{")
     body = [const_array("SEG", tab["segments"]),
             const_array("CSTART", grid.start, "int", per_line=16),
-            const_array("CITEMS", grid.items, "int", per_line=16),
-            f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};"]
+            const_array("CITEMS", tab["packed"], "int", per_line=16)]
+    body.append(f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};")
     if spheres:
         body.append(const_array("SPH", [v for L in spheres for v in (*L.center, L.radius, *L.radiance)]))
     if polys:
@@ -364,35 +502,54 @@ _BODY = r'''
         vector t = T - dot(T, n) * n;
         t = (length(t) > 1e-8) ? normalize(t) : normalize(cross(n, abs(n[0]) < 0.9 ? vector(1, 0, 0) : vector(0, 1, 0)));
         vector b = cross(n, t);
+        float xu = UV[0] * UV_SCALE, xv = UV[1] * UV_SCALE;     // shading point in um
         float rho = 0.0;
+        float wd = dot(wo, vector(12.9898, 78.233, 37.719));
 #if ROUTE_LIGHTS
         color Ls = 0;
 #else
-        int cs[MAXC];
-        color camp[MAXC];
-        color cH[MAXC];
-        float cW[MAXC];
+        int cs[NSTORE];          // stored (segment, weight r) pairs: r = H_m / p_m (RIS) or H_m (all)
+        float cr[NSTORE];
         int nc = 0;
-        float Htot = 0.0;
+        float Rtot = 0.0;
 #endif
+#if NCAND > 0
+        // RIS candidates: NCAND stratified draws from the cell's quantised bound distribution, weight 1/(NCAND p)
+        float uc = hashnoise(P, wd + 7.0);
+        for (int ci = 0; ci < NCAND; ci++) {
+            int k = (int)((ci + uc) / NCAND * (QMASK + 1));        // quantum index in [0, 2^QBITS)
+            k = min(k, QMASK);
+            int jl = c0, jh = c1 - 1;
+            while (jl < jh) {                                      // first item whose range ends at >= k
+                int mid = (jl + jh) / 2;
+                if ((CITEMS[mid] & QMASK) >= k) jh = mid; else jl = mid + 1;
+            }
+            int e0 = (jl > c0) ? (CITEMS[jl - 1] & QMASK) : -1;
+            float w = (QMASK + 1.0) / (NCAND * ((CITEMS[jl] & QMASK) - e0));
+            int m = NS * (CITEMS[jl] >> QBITS);
+#else
         for (int j = c0; j < c1; j++) {
-            int m = 9 * CITEMS[j];
-            float tu = SEG[m + 2], tv = SEG[m + 3];
-            float ru = (SEG[m] - UV[0]) * UV_SCALE, rv = (SEG[m + 1] - UV[1]) * UV_SCALE;
-            float sb = rv * tu - ru * tv;                 // s_b (um), b = (-t_v, t_u)
-            if (abs(sb) > REACH || SEG[m + 4] <= 0.0) continue;
-            float st1 = ru * tu + rv * tv, st2 = st1 + SEG[m + 4];
-            float W = SEG[m + 5];
-            float e2 = exp(-sb * sb / (2.0 * SIGMA * SIGMA));
-            float eta = A_C * e2 * e2 * (erf(st2 / SIGMA) - erf(st1 / SIGMA));                              // eq. 10
-            rho += W / A_C * e2 * sqrt(M_PI / 2.0) * SIGMA
-                   * (erf(st2 / (M_SQRT2 * SIGMA)) - erf(st1 / (M_SQRT2 * SIGMA)));                      // eq. 17
+            float w = 1.0;
+            int m = NS * (CITEMS[j] >> QBITS);
+#endif
+            float tu = SEG[m], tv = SEG[m + 1];
+            float sb = tv * xu - tu * xv + SEG[m + 3];          // s_b (um)
+            float st1 = SEG[m + 2] - (tu * xu + tv * xv);       // s_t1, s_t2 (um): the segment relative to x
+            float st2 = st1 + SEG[m + 4];
+            float gap = max(0.0, max(st1, -st2));
+            if (sb * sb + gap * gap > REACH * REACH) continue;  // beyond 3 sigma (as the numpy model)
+            float e2 = exp(sb * sb * (-0.5 / (SIGMA * SIGMA)));
+            float eta = A_C * e2 * e2 * (erf(st2 * (1.0 / SIGMA)) - erf(st1 * (1.0 / SIGMA)));               // eq. 10
+#if BASE_BLEND
+            rho += w * SEG[m + 10] * e2 * (erf(st2 * (M_SQRT1_2 / SIGMA)) - erf(st1 * (M_SQRT1_2 / SIGMA)));  // eq. 17
+#endif
             if (eta <= 0.0) continue;
+#if ROUTE_LIGHTS
+            float W = SEG[m + 5];
             vector tm = tu * t + tv * b;
             vector bm = cross(n, tm);
             float ot = dot(wo, tm), ob = dot(wo, bm);
-            color pref = eta * color(SEG[m + 6], SEG[m + 7], SEG[m + 8]);   // W^2 |D|^2 |eta_s|^2 / (A_C lambda^2)
-#if ROUTE_LIGHTS
+            color pref = (w * eta) * color(SEG[m + 11], SEG[m + 12], SEG[m + 13]);   // W^2 |D|^2 |eta_s|^2 / (A_C lambda^2)
             float c = -ot, rr = sqrt(max(0.0, 1.0 - c * c));
 #if NSPH
             for (int l = 0; l < NSPH; l++) {
@@ -446,8 +603,8 @@ _BODY = r'''
                         float g = mod(g0 + sg * dg, M_2PI);
                         if (g > M_2PI - 1e-6) g = 0.0;
                         if (g > gmax + 1e-6) continue;
-                        vector w = Ua * cos(g) + G * sin(g);
-                        float psi = atan2(dot(w, n), dot(w, bm));
+                        vector wv = Ua * cos(g) + G * sin(g);
+                        float psi = atan2(dot(wv, n), dot(wv, bm));
                         if (psi >= 0.0) { brk[nb] = psi; nb += 1; }
                     }
                 }
@@ -474,71 +631,62 @@ _BODY = r'''
             }
 #endif
 #else
-            // route A: Cauchy proxy h_c = amp_c / (1 + (xi2/s_c)^2), s_c = lambda_c/(pi W), whose mass over
-            // the real line is amp_c lambda_c / W; amp_c = pref_c sqrt(pi)/(sigma k_c) (xi1 integrated out)
-            color amp = pref * color(LAM[0], LAM[1], LAM[2]) / (2.0 * sqrt(M_PI) * SIGMA);
-            color H = amp * color(LAM[0], LAM[1], LAM[2]) / W;
-            float Hs = H[0] + H[1] + H[2];
-            if (Hs > 0.0 && nc < MAXC) {
-                cs[nc] = m; camp[nc] = amp; cH[nc] = H; cW[nc] = W;
-                Htot += Hs;
+            // route A: Cauchy proxy h_c = amp_c / (1 + (xi2/s_c)^2), s_c = lambda_c/(pi W), mass H_c = eta Hbar_c
+            float r = w * eta * SEG[m + 9];
+            if (r > 0.0 && nc < NSTORE) {
+                cs[nc] = m; cr[nc] = r;
+                Rtot += r;
                 nc++;
             }
 #endif
         }
-        rho = min(rho, 1.0);
+        rho = clamp(rho, 0.0, 1.0);
 #if BASE_BLEND
         BSDF = (1.0 - rho) * Base;
 #endif
 #if ROUTE_LIGHTS
         BSDF += Ls * emission();
 #else
-        if (Htot > 0.0) {
-            float h0 = hashnoise(P, dot(wo, vector(12.9898, 78.233, 37.719)));
+        if (Rtot > 0.0) {
+            // Rtot estimates (RIS) or equals (all) sum_m H_m; each lobe: (segment, channel) with probability
+            // r_i Hbar_c / (Rtot Hbar_sum), xi2 from that channel's Cauchy, weight Rtot g(xi2) / (KS h(xi2))
             float u0 = hashnoise(P, dot(wo, vector(93.989, 67.345, 24.113)) + 3.0);
             for (int k = 0; k < KS; k++) {
-                // stratified pick of (segment, channel) with probability H / Htot
-                float y = (k + u0) / KS * Htot;
-                int ic = nc - 1, ch = 2;
+                float y = (k + u0) / KS * Rtot;
+                int ic = nc - 1;
                 float acc = 0.0;
                 for (int i = 0; i < nc; i++) {
-                    color Hi = cH[i];
-                    float a3 = Hi[0] + Hi[1] + Hi[2];
-                    if (y < acc + a3) {
-                        ic = i;
-                        float yy = y - acc;
-                        ch = (yy < Hi[0]) ? 0 : ((yy < Hi[0] + Hi[1]) ? 1 : 2);
-                        break;
-                    }
-                    acc += a3;
+                    if (y < acc + cr[i]) { ic = i; break; }
+                    acc += cr[i];
                 }
-                int m = cs[ic];   // already 9 * segment id
-                float W = cW[ic];
-                vector tm = SEG[m + 2] * t + SEG[m + 3] * b;
+                int m = cs[ic];
+                float yy = clamp((y - acc) / cr[ic], 0.0, 1.0) * SEG[m + 9];
+                int ch = (yy < SEG[m + 6]) ? 0 : ((yy < SEG[m + 6] + SEG[m + 7]) ? 1 : 2);
+                float W = SEG[m + 5];
+                vector tm = SEG[m] * t + SEG[m + 1] * b;
                 vector bm = cross(n, tm);
                 float ot = dot(wo, tm), ob = dot(wo, bm);
                 float rr = sqrt(max(0.0, 1.0 - ot * ot));
-                float lo = ob - rr, hi = ob + rr;
                 // xi2 from the Cauchy proxy of channel ch; off the hemisphere's chord: weight 0
                 float s = LAM[ch] / (M_PI * W);
-                float u1 = hashnoise(P, dot(wo, vector(41.17, 19.31, 71.53)) + 29.0 * k + 5.0 + h0);
+                float u1 = hashnoise(P, dot(wo, vector(41.17, 19.31, 71.53)) + 29.0 * k + 5.0 + u0);
                 float xi = s * tan(M_PI * (clamp(u1, 1e-6, 1.0 - 1e-6) - 0.5));
-                if (xi <= lo || xi >= hi) continue;
+                if (xi <= ob - rr || xi >= ob + rr) continue;
                 color g = 0;
-                color am = camp[ic];
                 float hs = 0.0;
                 for (int c = 0; c < 3; c++) {
-                    float sc = LAM[c] / (M_PI * W);
+                    float amp = SEG[m + 6 + c] * W / LAM[c];       // amp_c / eta
                     float sn = sinc_f(M_PI * W * xi / LAM[c]);
-                    g[c] = am[c] * sn * sn;
-                    hs += am[c] / (1.0 + (xi / sc) * (xi / sc));
+                    float q = xi * M_PI * W / LAM[c];
+                    g[c] = amp * sn * sn;
+                    hs += amp / (1.0 + q * q);
                 }
                 if (hs <= 0.0) continue;
                 float wb = xi - ob;
                 float wn = sqrt(max(0.0, 1.0 - ot * ot - wb * wb));
                 vector hv = xi * bm + (wn + on) * n;
                 if (length(hv) <= 1e-8) continue;
-                BSDF += (Htot / (KS * hs)) * g * microfacet("ggx", normalize(hv), tm, LOBE_ALPHA, LOBE_ALPHA, 0.0, 0);
+                BSDF += (Rtot / (KS * hs)) * g * microfacet("ggx", normalize(hv), tm, LOBE_ALPHA, LOBE_ALPHA, 0.0, 0);
             }
         }
 #endif

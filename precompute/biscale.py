@@ -374,17 +374,25 @@ def effective_brdf(vertices, faces, face_material, materials, **opts) -> Effecti
 
 
 # ----------------------------------------------------------------------------- references
-def brute_force_fr(tile: BiscaleTile, materials, chunk: int = 256) -> np.ndarray:
+def brute_force_fr(tile: BiscaleTile, materials, chunk: int = 256, pairs=None) -> np.ndarray:
     """Direct eq. 8 without binning or SVD: f̄r(ωi, ωo) = Σ_s V_s(ωi) V_s(ωo) ΔA_s α_s
     f_r(n_s, ωi, ωo)(n_s·ωi)(n_s·ωo) / a_v(ωo), with each facet's own normal and the full RGB
-    BRDF, for all D x D grid pairs.  Returns (D, D, 3) (eq. 7's f̄r, cosine-weighted)."""
+    BRDF, for all D x D grid pairs.  Returns (D, D, 3) (eq. 7's f̄r, cosine-weighted).
+
+    ``pairs``: optional (i, o) index arrays of grid pairs to compute (the others stay 0); the cost
+    is proportional to their number (used by the benchmark to time a subset)."""
     V = tile.visibility
     dirs = tile.dirs
     D = len(dirs)
     out = np.zeros((D, D, 3))
     mats = [material_lobes(m) for m in materials]
-    ia, ib = np.meshgrid(np.arange(D), np.arange(D), indexing="ij")
-    ia, ib = ia.ravel(), ib.ravel()
+    if pairs is None:
+        ia, ib = np.meshgrid(np.arange(D), np.arange(D), indexing="ij")
+        ia, ib = ia.ravel(), ib.ravel()
+    else:
+        ia, ib = (np.asarray(p, np.int64).ravel() for p in pairs)
+        if ia.shape != ib.shape or ia.size == 0 or min(ia.min(), ib.min()) < 0 or max(ia.max(), ib.max()) >= D:
+            raise ValueError(f"pairs: expected two equal-length non-empty index arrays in [0, {D - 1}]")
     for a in range(0, len(ia), chunk):      # chunks of direction pairs, vectorised over facets
         i, o = ia[a:a + chunk], ib[a:a + chunk]
         vis = (V[:, i] & V[:, o]) * tile.dA[:, None]     # (S, k)

@@ -193,6 +193,9 @@ def _make_reference_material(brdf, name, fit=None):
     tree = mat.node_tree
     out = tree.nodes["Material Output"]
     try:
+        # before the node exists: assigning its script fires Cycles' update_script_node, which
+        # imports oslquery (a traceback in the log when OSL is on and oslquery not yet on sys.path)
+        osl_compile.ensure_oslquery()
         script = osl_compile.script_node_from_source(tree, f"{mat.name}.biscale.osl", src)
     except Exception:
         bpy.data.materials.remove(mat)

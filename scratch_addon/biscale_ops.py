@@ -169,9 +169,12 @@ class SCRATCH_PT_biscale(bpy.types.Panel):
         layout.operator("scratch.add_biscale_tile")
         layout.operator("scratch.bake_biscale")
         mat = context.material
-        if mat is not None and mat.get("scratch_addon_kind") == "biscale" and "biscale_fit_psnr" in mat:
-            layout.label(text=f"Fit: rel. L1 {mat.get('biscale_fit_rel_l1', 0):.3f}, "
-                              f"PSNR {mat.get('biscale_fit_psnr', 0):.1f} dB")
+        if mat is not None and mat.get("scratch_addon_kind") == "biscale":
+            if mat.get("biscale_mode") == "reference":
+                layout.label(text="Exact reference (OSL, ray portal sampling)")
+            elif "biscale_fit_psnr" in mat:
+                layout.label(text=f"Fit: rel. L1 {mat.get('biscale_fit_rel_l1', 0):.3f}, "
+                                  f"PSNR {mat.get('biscale_fit_psnr', 0):.1f} dB")
 
 
 classes = (SCRATCH_OT_add_biscale_tile, SCRATCH_OT_bake_biscale, SCRATCH_PT_biscale)

@@ -229,32 +229,41 @@ def layer_node(material):
     return material.node_tree.nodes.get(NODE_NAME) if material.node_tree else None
 
 
-def check_params(sigma_um=60.0, route="lobes", samples=4, base_blend=True) -> dict:
+def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candidates=4) -> dict:
     """Validate layer parameters (ValueError naming the parameter and its range)."""
     sigma_um = materials.check_range("sigma_um", sigma_um, 1.0, 1000.0)
     if route not in ROUTES:
         raise ValueError(f"route must be one of {', '.join(ROUTES)}; got {route!r}")
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 32:
         raise ValueError(f"samples must be an integer in [1, 32], got {samples!r}")
-    return dict(sigma_um=sigma_um, route=route, samples=samples, base_blend=bool(base_blend))
+    mc = layer_gen.MAX_CANDIDATES
+    if isinstance(candidates, bool) or not isinstance(candidates, int) or not 0 <= candidates <= mc:
+        raise ValueError(f"candidates must be an integer in [0, {mc}] (0 = all segments in reach), got {candidates!r}")
+    return dict(sigma_um=sigma_um, route=route, samples=samples, base_blend=bool(base_blend), candidates=candidates)
 
 
-def shader_source(scratches, sigma_um=60.0, route="lobes", samples=4, base_blend=True, lights=(), name="iridescent_layer"):
+def shader_source(scratches, sigma_um=60.0, route="lobes", samples=1, base_blend=True, lights=(), name="iridescent_layer",
+                  candidates=4):
     """Generated OSL source (see ``osl.iridescent_layer.generate``)."""
     spec = layer_gen.LayerSpec(scratches, sigma_um=sigma_um, route=route, lights=list(lights), samples=samples,
-                               base_blend=base_blend, name=name)
+                               base_blend=base_blend, name=name, candidates=candidates)
     return layer_gen.generate(spec)
 
 
-def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samples=4, base_blend=True, scene=None):
+def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samples=1, base_blend=True, scene=None,
+                 candidates=4):
     """Insert (or regenerate in place) the iridescent layer on ``material``; returns the script node.
+
+    ``candidates``: segments visited per shading sample (0 = all in reach; N > 0 = N drawn from a
+    bound and resampled, unbiased, cost independent of the scratch density); ``samples``: route-A
+    lobes per shading sample (see ``osl.iridescent_layer.LayerSpec``).
 
     ``scratches``: a ScratchSet (stored on the material) or None to use the stored one.  The
     surface closure previously linked to the Material Output becomes ``Base``.  Route "lights"
     compiles ``scene``'s (default: the context scene) lights in."""
     if not isinstance(material, bpy.types.Material):
         raise ValueError("material must be a bpy.types.Material")
-    p = check_params(sigma_um, route, samples, base_blend)
+    p = check_params(sigma_um, route, samples, base_blend, candidates)
     if scratches is None:
         scratches = stored_scratches(material)
         if scratches is None:
@@ -331,7 +340,7 @@ def refresh_lights(scene=None) -> int:
         info = json.loads(node["scratch_iridescence"])
         if info.get("route") == "lights" and info.get("lights") != h:
             insert_layer(mat, None, sigma_um=info["sigma_um"], route="lights", samples=info["samples"],
-                         base_blend=info["base_blend"], scene=scene)
+                         base_blend=info["base_blend"], scene=scene, candidates=info.get("candidates", 4))
             n += 1
     return n
 
@@ -342,7 +351,8 @@ def _rebuild(pg, context):
     if isinstance(mat, bpy.types.Material) and layer_node(mat) is not None:
         try:
             insert_layer(mat, None, sigma_um=pg.sigma_um, route=pg.route.lower(), samples=pg.samples,
-                         base_blend=pg.base_blend, scene=context.scene if context else None)
+                         base_blend=pg.base_blend, scene=context.scene if context else None,
+                         candidates=pg.candidates)
         except (ValueError, osl_compile.OSLCompileError) as exc:
             print(f"scratch_addon: iridescent layer not rebuilt: {exc}")
 
@@ -356,7 +366,11 @@ class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):
         ("LOBES", "Lobes (any light)", "Narrow GGX lobes: Cycles' light sampling, shadows, any light"),
         ("LIGHTS", "Closed-form lights", "Velinov's sphere/polygon integrals for the scene's point/area lights "
                                          "(no shadows; rebuilt when lights change)")])
-    samples: bpy.props.IntProperty(name="Lobes per Sample", default=4, min=1, max=32, update=_rebuild)
+    samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=_rebuild)
+    candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer_gen.MAX_CANDIDATES,
+                                      update=_rebuild,
+                                      description="Scratches visited per sample (0 = all in reach: exact but slow "
+                                                  "on dense sets)")
     base_blend: bpy.props.BoolProperty(name="Blend Base", default=True, update=_rebuild,
                                        description="Scale the base material by 1 - scratch area density (eq. 6)")
     count: bpy.props.IntProperty(name="Count", default=300, min=0, max=200000)

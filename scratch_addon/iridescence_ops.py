@@ -43,7 +43,7 @@ def _generate(pg):
 def _build(mat, context, scratches=None):
     pg = _pg(mat)
     return im.insert_layer(mat, scratches, sigma_um=pg.sigma_um, route=pg.route.lower(), samples=pg.samples,
-                           base_blend=pg.base_blend, scene=context.scene)
+                           base_blend=pg.base_blend, scene=context.scene, candidates=pg.candidates)
 
 
 _ERRORS = (ValueError, osl_compile.OSLCompileError)
@@ -235,7 +235,7 @@ class SCRATCH_PT_iridescence(bpy.types.Panel):
             return
         layout.operator_menu_enum("scratch.iridescence_preset", "preset", text="Preset")
         col = layout.column(align=True)
-        for name in ("route", "sigma_um", "samples", "base_blend"):
+        for name in ("route", "sigma_um", "samples", "candidates", "base_blend"):
             col.prop(pg, name)
         box = layout.box()
         box.label(text="Scratch set")

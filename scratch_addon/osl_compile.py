@@ -85,6 +85,7 @@ def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
 
 def script_node_from_source(tree: bpy.types.NodeTree, name: str, source: str) -> bpy.types.ShaderNodeScript:
     """Create an INTERNAL script node whose code lives in a Text datablock (saved in the .blend)."""
+    ensure_oslquery()  # assigning the script may trigger Cycles' own compile, which imports oslquery
     text = bpy.data.texts.get(name) or bpy.data.texts.new(name)
     text.clear()
     text.write(source)

@@ -190,3 +190,20 @@ def test_bad_inputs():
         effective_brdf(t.vertices, t.faces, t.face_material, lam, **{**SMALL, "dir_res": 1})
     with pytest.raises(ValueError, match="wi, wo"):
         effective_brdf(t.vertices, t.faces, t.face_material, lam, **SMALL).eval(np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+def test_brute_force_subset_of_pairs(groove):
+    """``brute_force_fr(pairs=...)`` (used by the bench to time a subset) == the full run at those
+    pairs, zero elsewhere; bad pairs -> ValueError naming the parameter."""
+    full = brute_force_fr(groove, GROOVE_MATS)
+    D = len(groove.dirs)
+    rng = np.random.default_rng(4)
+    sel = rng.choice(D * D, 50, replace=False)
+    i, o = sel // D, sel % D
+    sub = brute_force_fr(groove, GROOVE_MATS, pairs=(i, o))
+    np.testing.assert_allclose(sub[i, o], full[i, o], rtol=1e-12, atol=1e-15)
+    mask = np.ones((D, D), bool)
+    mask[i, o] = False
+    assert not sub[mask].any() and full[i, o].any()
+    with pytest.raises(ValueError, match="pairs"):
+        brute_force_fr(groove, GROOVE_MATS, pairs=([0, D], [0, 0]))

@@ -162,3 +162,25 @@ def test_lobes_finite_at_grazing(model, alpha, x1, z1, x2, z2):
     wo = np.array([x2, -0.2, z2]); wo /= np.linalg.norm(wo)
     f = eval_material(material_lobes(mat), np.array([0, 0, 1.0]), wi[None], wo[None])
     assert np.all(np.isfinite(f)) and np.all(f >= 0)
+
+
+def test_occluder_culling_is_exact_on_closed_tiles():
+    """visibility_matrix(closed=True, point_normals) only casts against back-facing triangles;
+    on a closed tile it must agree with the uncull'd caster (ties on edges aside), and the
+    closedness test must reject interpenetrating parts (rods) and open/flipped meshes."""
+    from precompute.biscale_geometry import is_closed_surface
+    rng = np.random.default_rng(6)
+    t = validate_tile(*heightfield_tile(rng.random((8, 8)) * 0.5))
+    assert is_closed_surface(t) and is_closed_surface(validate_tile(*pyramid_tile(n_sides=5)))
+    assert not is_closed_surface(validate_tile(*rods_tile()))
+    f = flat_tile(1, 3)
+    assert not is_closed_surface(f._replace(faces=np.concatenate([f.faces[:-1], f.faces[-1:, ::-1]])))
+    tri = t.vertices[t.faces]
+    pos, n, _, face, _ = sample_facets(t, 600, rng)
+    _, fn = face_geometry(t.vertices, t.faces)
+    dirs = direction_grid(6)
+    full = visibility_matrix(tri, 1.0, pos, dirs)
+    fast = visibility_matrix(tri, 1.0, pos, dirs, point_normals=fn[face], closed=True)
+    front = fn[face] @ dirs.T > 0
+    assert (full[front] != fast[front]).mean() <= 0.002
+    assert not fast[~front].any()        # self-occluded

@@ -2,7 +2,8 @@
 
 References: ``precompute.iridescence.evaluate`` (numpy, exact Si, point evaluation at 4x4 sub-pixel
 positions) for the flat-plane renders; a render of the base material alone for zero-scratch
-regions (must be bit-identical); analytic expectations (light below the horizon → 0)."""
+regions (must be bit-identical); analytic expectations (light below the horizon → 0).  Both the
+default RIS candidate stage and the exhaustive path (candidates=0) are checked against numpy."""
 from __future__ import annotations
 
 import importlib
@@ -29,31 +30,36 @@ def irid(addon):
 
 
 @pytest.mark.render
-def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir):
+@pytest.mark.parametrize("candidates, samples, spp", [(4, 4, 512), (0, 4, 128)])
+def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, samples, spp):
     im, _ = irid
     S = make_scratches(im.scratch_set)
-    sc, _mat, cam = flat_scene(addon.render, im, S, route="lobes", res=32, spp=128)
+    sc, _mat, cam = flat_scene(addon.render, im, S, route="lobes", res=32, spp=spp, candidates=candidates,
+                               samples=samples)
     img, _ = addon.render.render_array(sc, str(render_dir))
     ref = numpy_reference(ir, S, cam, 32)
     mean_err, block_err = errors(img, ref)
-    # Route A is an unbiased MC estimator of the model: per-pixel relative std at 128 spp measured
-    # ~0.15 (4 lobes/sample), so the mean over 1024 px has ~0.5 % noise; 5 % is the issue's bar and
-    # a 10 % mismatch (e.g. a missing √π or λ² factor, a mirrored frame) fails it by far.
+    # Route A is an unbiased MC estimator of the model (RIS candidates or every segment in reach):
+    # per-pixel relative RMSE measured ~0.6 at 256 spp x 1 lobe (bench), so with 4 lobes and
+    # 128-512 spp the mean over 1024 px has ~1-2 % noise; 5 % is the issue's bar and a 10 %
+    # mismatch (a missing √π or λ² factor, a wrong 1/p weight, a mirrored frame) fails it.
     assert np.all(np.abs(mean_err) < 0.05), mean_err
-    assert block_err < 0.08, block_err           # 8x8-px blocks: 64 px x 128 spp each
+    assert block_err < 0.10, block_err           # 8x8-px blocks: 64 px x 128+ spp each
     assert np.isfinite(img).all()
 
 
 @pytest.mark.render
-def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir):
+@pytest.mark.parametrize("candidates, spp", [(4, 256), (0, 4)])
+def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, spp):
     im, _ = irid
     S = make_scratches(im.scratch_set)
-    sc, _mat, cam = flat_scene(addon.render, im, S, route="lights", res=32, spp=4)
+    sc, _mat, cam = flat_scene(addon.render, im, S, route="lights", res=32, spp=spp, candidates=candidates)
     img, _ = addon.render.render_array(sc, str(render_dir))
     ref = numpy_reference(ir, S, cam, 32)
     mean_err, block_err = errors(img, ref)
-    # Closed forms, no light sampling: the only noise is the box filter's 4 positions per pixel vs
-    # the reference's 16, and float32 Si (|err| < 2e-6).
+    # Closed forms, no light sampling.  Exhaustive (0): the only noise is the box filter's 4 positions
+    # per pixel vs the reference's 16 and float32 Si (|err| < 2e-6).  RIS (4 candidates): pixel RMSE
+    # ~0.17 at 256 spp on 64x64 (bench) -> mean over 1024 px ~0.5 %, 8x8 blocks ~2 %.
     assert np.all(np.abs(mean_err) < 0.02), mean_err
     assert block_err < 0.05, block_err
 
@@ -179,6 +185,8 @@ def test_bad_parameters_raise_clear_errors(addon, irid, scene):
         im.insert_layer(mat, S, route="both")
     with pytest.raises(ValueError, match="samples"):
         im.insert_layer(mat, S, samples=0)
+    with pytest.raises(ValueError, match="candidates"):
+        im.insert_layer(mat, S, candidates=-1)
     with pytest.raises(ValueError, match="no scratch set"):
         im.insert_layer(mat)
     with pytest.raises(ValueError, match="count"):
