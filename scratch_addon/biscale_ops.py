@@ -5,6 +5,7 @@ import bpy
 import numpy as np
 
 from . import _deps
+from .ui_utils import progress
 
 
 def tile_mesh(kind: str, **params):
@@ -131,18 +132,14 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
         if self.target and target is None:
             self.report({"ERROR"}, f"target: no object named {self.target!r}")
             return {"CANCELLED"}
-        wm = context.window_manager
-        wm.progress_begin(0, 100)
         try:
-            mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes,
-                                             progress=lambda f: wm.progress_update(int(100 * f)),
-                                             depsgraph=context.evaluated_depsgraph_get(),
-                                             mode=self.mode.lower(), n_facets=self.n_facets, dir_res=self.dir_res)
+            with progress(context) as update:
+                mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes, progress=update,
+                                                 depsgraph=context.evaluated_depsgraph_get(),
+                                                 mode=self.mode.lower(), n_facets=self.n_facets, dir_res=self.dir_res)
         except (ValueError, RuntimeError) as exc:   # RuntimeError: OSL compile errors (OSLCompileError)
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        finally:
-            wm.progress_end()
         reused = " (tile reused)" if info["reused_tile"] else ""
         if fit is not None:
             self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")

@@ -10,6 +10,7 @@ import bpy
 
 from . import iridescence_material as im
 from . import osl_compile
+from .ui_utils import progress
 
 
 def _material(context):
@@ -60,16 +61,13 @@ class SCRATCH_OT_add_iridescent_layer(bpy.types.Operator):
 
     def execute(self, context):
         mat = _material(context)
-        wm = context.window_manager
-        wm.progress_begin(0, 1)
         try:
-            scratches = None if im.stored_scratches(mat) is not None else _generate(_pg(mat))
-            _build(mat, context, scratches)
+            with progress(context):
+                scratches = None if im.stored_scratches(mat) is not None else _generate(_pg(mat))
+                _build(mat, context, scratches)
         except _ERRORS as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        finally:
-            wm.progress_end()
         self.report({"INFO"}, f"Iridescent layer on {mat.name}")
         return {"FINISHED"}
 

@@ -17,9 +17,11 @@ import hashlib
 import os
 
 import bpy
+
 import numpy as np
 
 from . import _deps, materials
+from .ui_utils import assign_material, poll_active_mesh, progress
 
 NDF_KINDS = (
     ("FILTERED", "Filtered", "Gaussian-weighted plane fits, sigma (§5.1; the paper's default)"),
@@ -249,11 +251,7 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        obj = context.active_object
-        if obj is None or obj.type != "MESH":
-            cls.poll_message_set("Select a mesh object")
-            return False
-        return True
+        return poll_active_mesh(cls, context)
 
     def invoke(self, context, event):
         if not self.filepath and context.window is not None:
@@ -272,22 +270,15 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
-        wm = context.window_manager
-        wm.progress_begin(0, 100)
         try:
-            mat, info = material_from_heightfield(
-                self.filepath, self.pixel_um, self.sigma_um, self.wavelength_um, self.ndf_kind, self.synthesize,
-                self.texture_size, self.texel_um, self.texture_scale, self.seed,
-                progress=lambda f: wm.progress_update(int(100 * f)))
+            with progress(context) as update:
+                mat, info = material_from_heightfield(
+                    self.filepath, self.pixel_um, self.sigma_um, self.wavelength_um, self.ndf_kind, self.synthesize,
+                    self.texture_size, self.texel_um, self.texture_scale, self.seed, progress=update)
         except (ValueError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        finally:
-            wm.progress_end()
-        if obj.data.materials:
-            obj.data.materials[obj.active_material_index] = mat
-        else:
-            obj.data.materials.append(mat)
+        assign_material(obj, mat)
         loss = info["loss"]
         self.report({"WARNING"} if not loss.lossless else {"INFO"},
                     f"Assigned {mat.name}{' (cached tables)' if info['cached'] else ''}; {loss}")

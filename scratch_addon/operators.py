@@ -8,32 +8,11 @@ from __future__ import annotations
 import bpy
 
 from . import api, osl_compile, presets
+from .ui_utils import assign_material, poll_active_mesh, progress
 
 
 def _preset_items(_self, _context):
     return [(p.name, p.name.replace("_", " ").title(), p.description) for p in presets.PRESETS.values()]
-
-
-def _assign(obj, mat) -> None:
-    if obj.data.materials:
-        obj.data.materials[obj.active_material_index] = mat
-    else:
-        obj.data.materials.append(mat)
-
-
-class _Progress:
-    """Context manager around ``wm.progress_begin/update/end`` (harmless headless)."""
-
-    def __init__(self, context):
-        self.wm = context.window_manager
-
-    def __enter__(self):
-        self.wm.progress_begin(0, 100)
-        return lambda f: self.wm.progress_update(int(100 * f))
-
-    def __exit__(self, *exc):
-        self.wm.progress_end()
-        return False
 
 
 class SCRATCH_OT_add_preset_material(bpy.types.Operator):
@@ -47,26 +26,22 @@ class SCRATCH_OT_add_preset_material(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        obj = context.active_object
-        if obj is None or obj.type != "MESH":
-            cls.poll_message_set("Select a mesh object")
-            return False
-        return True
+        return poll_active_mesh(cls, context)
 
     def execute(self, context):
         obj = context.active_object
         p = presets.get(self.preset)
         try:
-            with _Progress(context) as progress:
+            with progress(context) as update:
                 if p.kind == "scratch":
-                    mat = api.make_scratched_material(self.preset, progress=progress)
+                    mat = api.make_scratched_material(self.preset, progress=update)
                     mat.scratch.from_params(p.params)
                 else:
                     mat = api.make_material(self.preset)
         except (ValueError, osl_compile.OSLCompileError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        _assign(obj, mat)
+        assign_material(obj, mat)
         if p.kind == "scratch":
             context.scene.cycles.shading_system = True
             if not obj.data.uv_layers:
@@ -94,8 +69,8 @@ class SCRATCH_OT_update_material(bpy.types.Operator):
         mat = context.material
         try:
             params = mat.scratch.to_params()
-            with _Progress(context) as progress:
-                api.make_scratched_material(material=mat, progress=progress, **params)
+            with progress(context) as update:
+                api.make_scratched_material(material=mat, progress=update, **params)
         except (ValueError, osl_compile.OSLCompileError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
