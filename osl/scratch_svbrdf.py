@@ -46,6 +46,7 @@ class LobeTable:
     width: np.ndarray   # [L] GGX alpha_y
     weight: np.ndarray  # [L, 3] RGB closure weights
     gamma: np.ndarray   # [L] γ at the lobe centre (eq. 2)
+    dist: np.ndarray = None  # [L] 0 = GGX, 1 = Beckmann (None: all GGX)
 
     @classmethod
     def from_fit(cls, fit: dict, weights_rgb=None, gamma_table=None) -> "LobeTable":
@@ -66,7 +67,8 @@ class LobeTable:
             phi_c = 2.0 * np.asarray(fit["tilts"], float) - phi_o[:, None]
             i = np.clip(np.floor((phi_c + np.pi / 2) / np.pi * g.shape[1]).astype(int), 0, g.shape[1] - 1)
             gamma = g[np.arange(M)[:, None], i][keep] if g.shape[0] == M else np.ones(int(start[-1]))
-        return cls(start, tilt, width, rgb[keep], gamma)
+        dist = np.asarray(fit["dist"])[keep].astype(int) if "dist" in fit else np.zeros(int(start[-1]), int)
+        return cls(start, tilt, width, rgb[keep], gamma, dist)
 
     @property
     def n_slices(self) -> int:
@@ -93,7 +95,9 @@ class ShaderSpec:
 
 
 def _lobe_arrays(prefix: str, t: LobeTable) -> str:
+    dist = np.zeros(len(t.tilt), int) if t.dist is None else np.asarray(t.dist, int)
     return (const_array(f"{prefix}_START", t.start, "int")
+            + const_array(f"{prefix}_DIST", dist, "int")
             + const_array(f"{prefix}_TILT", t.tilt)
             + const_array(f"{prefix}_AY", t.width)
             + const_array(f"{prefix}_W", t.weight.ravel())
@@ -175,21 +179,27 @@ float lobe_factor(float gam, float x, int use_r, int r_is_m)
 // A lobe: GGX with its normal tilted inside the n-v plane, tangent u (precompute.lobe_fit).
 // No horizon culling: the fit already accounts for what Cycles loses below the horizon, and
 // lobes centred near grazing carry real energy.
-closure color lobe(float tilt, float ay, vector u, vector v, normal n)
+closure color lobe(int beckmann, float tilt, float ay, vector u, vector v, normal n)
 {
-    return microfacet("ggx", normalize(cos(tilt) * n + sin(tilt) * v), u, AX, ay, 0.0, 0);
+    normal Nl = normalize(cos(tilt) * n + sin(tilt) * v);
+    closure color c = 0;
+    if (beckmann)
+        c = microfacet("beckmann", Nl, u, AX, ay, 0.0, 0);
+    else
+        c = microfacet("ggx", Nl, u, AX, ay, 0.0, 0);
+    return c;
 }
 
 '''
 
 _LOBE_FUNC_ALL = r'''
-closure color lobe_set(int start[], float tilt[], float ay[], float w[], float gam[], int s,
+closure color lobe_set(int start[], int dist[], float tilt[], float ay[], float w[], float gam[], int s,
                        float x, vector u, vector v, normal n, int use_r, int r_is_m)
 {
     closure color c = 0;
     for (int j = start[s]; j < start[s + 1]; j++)
         c += lobe_factor(gam[j], x, use_r, r_is_m) * color(w[3 * j], w[3 * j + 1], w[3 * j + 2])
-             * lobe(tilt[j], ay[j], u, v, n);
+             * lobe(dist[j], tilt[j], ay[j], u, v, n);
     return c;
 }
 
@@ -206,7 +216,7 @@ float set_weight(int start[], float w[], float gam[], int s, float x, int use_r,
 }
 
 // The lobe at cumulative weight ``target`` (< the set's total), weighted by 1 / probability.
-closure color set_pick(int start[], float tilt[], float ay[], float w[], float gam[], int s, float x,
+closure color set_pick(int start[], int dist[], float tilt[], float ay[], float w[], float gam[], int s, float x,
                        int use_r, int r_is_m, float target, float total, vector u, vector v, normal n)
 {
     float acc = 0.0;
@@ -225,7 +235,7 @@ closure color set_pick(int start[], float tilt[], float ay[], float w[], float g
         return none;
     color wj = lobe_factor(gam[last], x, use_r, r_is_m) * color(w[3 * last], w[3 * last + 1], w[3 * last + 2]);
     float lum = wj[0] + wj[1] + wj[2];
-    return (total / lum) * wj * lobe(tilt[last], ay[last], u, v, n);
+    return (total / lum) * wj * lobe(dist[last], tilt[last], ay[last], u, v, n);
 }
 '''
 
@@ -380,7 +390,7 @@ _LAYER_HEAD = r'''
 _RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
     ("pick", True): r'''
         float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 0, 1);
-        closure color rho = set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 0, 1, h_lobe * wm, wm, u, v, n);
+        closure color rho = set_pick(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 0, 1, h_lobe * wm, wm, u, v, n);
 ''',
     ("pick", False): r'''
         float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 1, 1);
@@ -388,16 +398,16 @@ _RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
         float target = h_lobe * (wm + w0);
         closure color rho = 0;
         if (target < wm)
-            rho = set_pick(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n);
+            rho = set_pick(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n);
         else
-            rho = set_pick(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
+            rho = set_pick(L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
 ''',
     ("all", True): r'''
-        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
+        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
 ''',
     ("all", False): r'''
-        closure color rho = lobe_set(LM_START, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 1, 1)
-                          + lobe_set(L0_START, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, u, v, n, 1, 0);
+        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 1, 1)
+                          + lobe_set(L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, u, v, n, 1, 0);
 ''',
 }
 

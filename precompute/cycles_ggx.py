@@ -46,7 +46,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import cycles_beckmann as _bk
+
 __all__ = [
+    "GGX",
+    "BECKMANN",
+    "dist_code",
     "BSDF_ROUGHNESS_SQ_THRESH",
     "direction",
     "angles",
@@ -67,6 +72,11 @@ __all__ = [
 #: ``kernel/svm/types.h``: a microfacet closure with alpha_x*alpha_y <= this is singular (no eval).
 BSDF_ROUGHNESS_SQ_THRESH = 2e-10
 
+#: distribution codes (``dist`` arrays of the lobe fit): OSL ``microfacet("ggx", ...)`` / ``("beckmann", ...)``
+GGX = 0
+BECKMANN = 1
+_DIST_NAMES = {"ggx": GGX, "beckmann": BECKMANN}
+
 _Z = np.array([0.0, 0.0, 1.0])
 _U = np.array([1.0, 0.0, 0.0])
 
@@ -85,6 +95,42 @@ def _check_alpha(name, a):
     if not np.all(np.isfinite(a)) or np.any(a < 0.0):
         raise ValueError(f"{name} must be finite and >= 0 (Cycles clamps it to [0, 1]); got {a!r}")
     return a
+
+
+def dist_code(dist):
+    """Distribution code(s): "ggx" -> 0 (:data:`GGX`), "beckmann" -> 1 (:data:`BECKMANN`); int arrays pass through."""
+    if isinstance(dist, str):
+        if dist.lower() not in _DIST_NAMES:
+            raise ValueError(f"dist must be 'ggx' or 'beckmann' (or codes 0/1); got {dist!r}")
+        return np.array(_DIST_NAMES[dist.lower()])
+    d = np.asarray(dist)
+    if d.dtype.kind not in "iub" or not np.all((d == GGX) | (d == BECKMANN)):
+        raise ValueError(f"dist must be 'ggx' or 'beckmann' or an integer array of codes 0 (GGX) / 1 (Beckmann); got {dist!r}")
+    return d.astype(np.int8)
+
+
+def _D(code, ax, ay, local_H):
+    if np.all(code == GGX):
+        return ggx_aniso_D(ax, ay, local_H)
+    if np.all(code == BECKMANN):
+        return _bk.beckmann_aniso_D(ax, ay, local_H)
+    return np.where(code == BECKMANN, _bk.beckmann_aniso_D(ax, ay, local_H), ggx_aniso_D(ax, ay, local_H))
+
+
+def _lambda_from_s(code, s):
+    """Cycles ``bsdf_lambda_from_sqr_alpha_tan_n<GGX|BECKMANN>`` of s = ((ax Vx)^2 + (ay Vy)^2) / Vz^2."""
+    ggx = lambda: 0.5 * (np.sqrt(1.0 + s) - 1.0)  # noqa: E731
+    if np.all(code == GGX):
+        return ggx()
+    if np.all(code == BECKMANN):
+        return _bk.beckmann_lambda_from_sqr_alpha_tan_n(s)
+    return np.where(code == BECKMANN, _bk.beckmann_lambda_from_sqr_alpha_tan_n(s), ggx())
+
+
+def _lambda(code, ax, ay, local_V):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = ((ax * local_V[..., 0]) ** 2 + (ay * local_V[..., 1]) ** 2) / local_V[..., 2] ** 2
+    return _lambda_from_s(code, s)
 
 
 def direction(theta, phi):
@@ -165,8 +211,8 @@ def _closure_normal(N, Ng, wi, bump_map_correction):
     return N
 
 
-def bsdf_eval(N, T, alpha_x, alpha_y, wi, wo, Ng=_Z, bump_map_correction=False):
-    """What Cycles' ``bsdf_eval`` returns for one OSL ``microfacet("ggx", N, T, ax, ay, eta, 0)`` closure.
+def bsdf_eval(N, T, alpha_x, alpha_y, wi, wo, Ng=_Z, bump_map_correction=False, dist="ggx"):
+    """What Cycles' ``bsdf_eval`` returns for one OSL ``microfacet(dist, N, T, ax, ay, eta, 0)`` closure.
 
     Mirrors ``bsdf_eval`` (``kernel/closure/bsdf.h``: ``bump_shadowing_term(..., is_eval=true)``) and
     ``bsdf_microfacet_eval<GGX>`` (``kernel/closure/bsdf_microfacet.h``), closure weight 1.
@@ -174,9 +220,12 @@ def bsdf_eval(N, T, alpha_x, alpha_y, wi, wo, Ng=_Z, bump_map_correction=False):
     Parameters are broadcastable arrays of 3-vectors (``N`` closure normal, ``T`` tangent, ``wi``
     towards the viewer, ``wo`` towards the light, ``Ng`` the geometric = smooth normal) and
     roughnesses ``alpha_x`` (along T), ``alpha_y`` (dimensionless, clamped to [0, 1] like
-    ``bsdf_microfacet_ggx_setup``).  Returns ``(eval, pdf)``: eval = D G2 / (4 N.wi) = f cos(light)
+    ``bsdf_microfacet_ggx_setup`` / ``..._beckmann_setup``).  ``dist``: "ggx" or "beckmann" (or
+    codes 0/1, broadcastable; Beckmann D and Cycles' approximate Beckmann Lambda from
+    :mod:`precompute.cycles_beckmann`).  Returns ``(eval, pdf)``: eval = D G2 / (4 N.wi) = f cos(light)
     (per steradian of ``wo``) and the VNDF pdf D / (4 N.wi (1 + Lambda(wi))).
     """
+    code = dist_code(dist)
     ax = np.minimum(_check_alpha("alpha_x", alpha_x), 1.0)
     ay = np.minimum(_check_alpha("alpha_y", alpha_y), 1.0)
     Ng = np.asarray(Ng, dtype=float)
@@ -197,9 +246,9 @@ def bsdf_eval(N, T, alpha_x, alpha_y, wi, wo, Ng=_Z, bump_map_correction=False):
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         axs = np.where(valid, ax, 1.0)
         ays = np.where(valid, ay, 1.0)
-        D = ggx_aniso_D(axs, ays, loc(H))
-        lam_I = ggx_aniso_lambda(axs, ays, loc(wi))
-        lam_O = ggx_aniso_lambda(axs, ays, loc(wo))
+        D = _D(code, axs, ays, loc(H))
+        lam_I = _lambda(code, axs, ays, loc(wi))
+        lam_O = _lambda(code, axs, ays, loc(wo))
         common = D / cos_NI * 0.25
         ev = common / (1.0 + lam_I + lam_O)
         pdf = common / (1.0 + lam_I)
@@ -263,14 +312,15 @@ def bsdf_sample(N, T, alpha_x, alpha_y, wi, u1, u2, Ng=_Z, bump_map_correction=F
 
 
 # ----------------------------------------------------------------------------- tilted lobes on the cone
-def tilted_lobe_eval(theta_o, phi_o, theta_i, phi_i, tilt, alpha_y, alpha_x=1e-3, bump_map_correction=False):
+def tilted_lobe_eval(theta_o, phi_o, theta_i, phi_i, tilt, alpha_y, alpha_x=1e-3, bump_map_correction=False,
+                     dist="ggx"):
     """:func:`bsdf_eval` of a tilted lobe (N' = cos t n + sin t v, T = u) in paper angles (radians).
 
     Returns ``(eval, pdf)`` per steradian of the light direction omega_i(theta_i, phi_i).
     """
     wi = direction(theta_o, phi_o)
     wo = direction(theta_i, phi_i)
-    return bsdf_eval(tilted_normal(tilt), _U, alpha_x, alpha_y, wi, wo, _Z, bump_map_correction)
+    return bsdf_eval(tilted_normal(tilt), _U, alpha_x, alpha_y, wi, wo, _Z, bump_map_correction, dist)
 
 
 def effective_tilt(tilt, theta_o, phi_o, bump_map_correction=False):
@@ -321,7 +371,7 @@ def _slope_mass_and_mean(x_lo, x_hi):
     return np.maximum(mass, 0.0), np.clip(mean, x_lo, x_hi)
 
 
-def _cone_smooth_factor(phi_o, phi_i, t, alpha_y, alpha_x, theta_o):
+def _cone_smooth_factor(phi_o, phi_i, t, alpha_y, alpha_x, theta_o, code=GGX):
     """Factor F of the cone collapse g = p(s) |ds/dphi_i| F: sec(a-t) cos((phi_o-phi_i)/2) / cos(phi_o-t) G2.
 
     With A = phi_o - t, B = phi_i - t: a - t = (A + B)/2 and (phi_o - phi_i)/2 = (A - B)/2, so the
@@ -336,14 +386,14 @@ def _cone_smooth_factor(phi_o, phi_i, t, alpha_y, alpha_x, theta_o):
     tth2 = np.tan(theta_o) ** 2
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         # Lambda in the closure frame: local V = (sin th, cos th sin(phi-t), cos th cos(phi-t)) (X = u).
-        lam_o = 0.5 * (np.sqrt(1.0 + (alpha_y**2 * (1.0 - co * co) + alpha_x**2 * tth2) / (co * co)) - 1.0)
-        lam_i = 0.5 * (np.sqrt(1.0 + (alpha_y**2 * (1.0 - ci * ci) + alpha_x**2 * tth2) / (ci * ci)) - 1.0)
+        lam_o = _lambda_from_s(code, (alpha_y**2 * (1.0 - co * co) + alpha_x**2 * tth2) / (co * co))
+        lam_i = _lambda_from_s(code, (alpha_y**2 * (1.0 - ci * ci) + alpha_x**2 * tth2) / (ci * ci))
         F = (cA * cB + sA * sB) / ((cA * cB - sA * sB) * co * (1.0 + lam_o + lam_i))
     valid = (np.cos(phi_o) > 0) & (co > 0) & (ci > 0) & (np.abs(phi_i) < 0.5 * np.pi) & np.isfinite(F)
     return np.where(valid, F, 0.0)
 
 
-def cone_collapse(phi_o, phi_i, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_map_correction=False):
+def cone_collapse(phi_o, phi_i, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_map_correction=False, dist="ggx"):
     """Effective 1D function g(phi_i) of one tilted lobe on the reflection half-cone (radians in, 1/rad out).
 
     g(phi_i) = integral over theta_i of eval(omega_o, omega_i) cos(theta_i) dtheta_i, so that the
@@ -353,7 +403,8 @@ def cone_collapse(phi_o, phi_i, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_m
     the cone theta_i = -theta_o); with s = tan(a - t), a = (phi_o + phi_i)/2::
 
         g = p(s) sec^2(a-t)/2 * sec(a-t) cos((phi_o-phi_i)/2) / cos(phi_o-t) * G2(omega_o, omega_i)
-        p(s) = 1 / (2 ay (1 + s^2/ay^2)^{3/2})
+        p(s) = 1 / (2 ay (1 + s^2/ay^2)^{3/2})          (GGX slope marginal)
+        p(s) = exp(-s^2/ay^2) / (sqrt(pi) ay)           (Beckmann, ``dist="beckmann"``)
 
     (derivation: d omega_i = 4 (h.omega_o) d omega_h, D d omega_h = P22 ds_x ds_y / cos theta_h,
     h.omega_o = cos theta_o cos((phi_o-phi_i)/2), N'.omega_o = cos theta_o cos(phi_o - t)).
@@ -361,16 +412,18 @@ def cone_collapse(phi_o, phi_i, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_m
     Cycles rejects: view below N' or n, light below N' (Smith/eval) or below n (bump_shadowing_term,
     sampling).  ``tilt`` t in radians; with ``bump_map_correction`` the corrected tilt is used.
     """
+    code = dist_code(dist)
     ax, ay = _check_cone_args(alpha_x, alpha_y)
     phi_o, phi_i = np.asarray(phi_o, float), np.asarray(phi_i, float)
     t = effective_tilt(tilt, theta_o, phi_o, bump_map_correction)
     a_t = 0.5 * (phi_o + phi_i) - t
-    s = np.tan(a_t)
-    p = 1.0 / (2.0 * ay * (1.0 + (s / ay) ** 2) ** 1.5)
-    return p * 0.5 / np.cos(a_t) ** 2 * _cone_smooth_factor(phi_o, phi_i, t, ay, ax, theta_o)
+    x = np.tan(a_t) / ay
+    p = np.where(code == BECKMANN, _bk.slope_pdf(x), 0.5 / (1.0 + x * x) ** 1.5) / ay
+    return p * 0.5 / np.cos(a_t) ** 2 * _cone_smooth_factor(phi_o, phi_i, t, ay, ax, theta_o, code)
 
 
-def cone_collapse_binned(phi_o, phi_edges, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_map_correction=False):
+def cone_collapse_binned(phi_o, phi_edges, tilt, alpha_y, alpha_x=1e-3, theta_o=0.0, bump_map_correction=False,
+                         dist="ggx"):
     """Bin average of :func:`cone_collapse` over phi_i bins ``[phi_edges[k], phi_edges[k+1]]`` (radians).
 
     The sharp factor p(s) ds is integrated exactly through its CDF (in a tail-accurate form); the
@@ -378,27 +431,39 @@ def cone_collapse_binned(phi_o, phi_edges, tilt, alpha_y, alpha_x=1e-3, theta_o=
     position inside the valid part of each bin (bins next to the tilted normal's horizon, where
     G2 -> 0 inside the bin, are accurate to ~1 % of the lobe peak only).
     Accurate for any width, including lobes much narrower than a bin.  Broadcasting: ``phi_o``,
-    ``tilt``, ``alpha_y`` broadcast against each other (shape S); output shape S + (nbins,).
+    ``tilt``, ``alpha_y`` (and ``dist``: "ggx", "beckmann" or an array of codes 0/1, the Beckmann
+    bins use the erf form of the Gaussian slope CDF) broadcast against each other (shape S); output
+    shape S + (nbins,).
     """
+    code = dist_code(dist)
     ax, ay = _check_cone_args(alpha_x, alpha_y)
     phi_o = np.asarray(phi_o, float)
     t = np.asarray(effective_tilt(tilt, theta_o, phi_o, bump_map_correction), float)
     e = np.asarray(phi_edges, float)
     if e.ndim != 1 or e.size < 2 or np.any(np.diff(e) <= 0):
         raise ValueError("phi_edges must be a strictly increasing 1D array of >= 2 bin edges")
-    phi_o, t, ay, ax = (np.asarray(x)[..., None] for x in np.broadcast_arrays(phi_o, t, ay, ax))
+    phi_o, t, ay, ax, code = (np.asarray(x)[..., None] for x in np.broadcast_arrays(phi_o, t, ay, ax, code))
     # valid light interval: above n (|phi_i| < pi/2) and above N' (|phi_i - t| < pi/2)
     ec = np.clip(e, np.maximum(-0.5 * np.pi, t - 0.5 * np.pi), np.minimum(0.5 * np.pi, t + 0.5 * np.pi))
     a_t = np.clip(0.5 * (phi_o + ec) - t, -0.5 * np.pi + 1e-12, 0.5 * np.pi - 1e-12)
     x = np.tan(a_t) / ay
-    mass, x_mean = _slope_mass_and_mean(x[..., :-1], x[..., 1:])
+    if np.all(code == GGX):
+        mass, x_mean = _slope_mass_and_mean(x[..., :-1], x[..., 1:])
+    elif np.all(code == BECKMANN):
+        mass, x_mean = _bk.slope_mass_and_mean(x[..., :-1], x[..., 1:])
+    else:
+        mg, xg = _slope_mass_and_mean(x[..., :-1], x[..., 1:])
+        mb, xb = _bk.slope_mass_and_mean(x[..., :-1], x[..., 1:])
+        beck = code == BECKMANN
+        mass, x_mean = np.where(beck, mb, mg), np.where(beck, xb, xg)
     # smooth factor at the p-weighted mean position inside the bin (exact for narrow lobes)
     phi_eval = 2.0 * (np.arctan(x_mean * ay) + t) - phi_o
-    F = _cone_smooth_factor(phi_o, phi_eval, t, ay, ax, theta_o)
+    F = _cone_smooth_factor(phi_o, phi_eval, t, ay, ax, theta_o, code)
     return np.where(ec[..., 1:] > ec[..., :-1], mass * F, 0.0) / np.diff(e)
 
 
-def albedo(tilt, alpha_x, alpha_y, theta_o=0.0, phi_o=0.0, n=768, bump_map_correction=False, quantity="eval"):
+def albedo(tilt, alpha_x, alpha_y, theta_o=0.0, phi_o=0.0, n=768, bump_map_correction=False, quantity="eval",
+           dist="ggx"):
     """Directional albedo of one tilted lobe: integral of :func:`bsdf_eval` over all light directions.
 
     Numerical integration in the closure's slope space (independent of the cone collapse): with
@@ -408,7 +473,9 @@ def albedo(tilt, alpha_x, alpha_y, theta_o=0.0, phi_o=0.0, n=768, bump_map_corre
     rejections (light below N' or n).  A midpoint rule on an n x n grid of (u, psi) is used
     (error ~1/n at the rejection boundaries).  ``quantity="pdf"`` integrates the pdf instead (the
     probability that a BSDF sample is not rejected).  Angles in radians; returns a float array.
+    ``dist="beckmann"``: Beckmann slopes have P22 = exp(-r^2) / (pi ax ay), uniform in u = 1 - exp(-r^2).
     """
+    code = int(dist_code(dist))
     if quantity not in ("eval", "pdf"):
         raise ValueError("quantity must be 'eval' or 'pdf'")
     if not (isinstance(n, (int, np.integer)) and 8 <= n <= 8192):
@@ -422,7 +489,7 @@ def albedo(tilt, alpha_x, alpha_y, theta_o=0.0, phi_o=0.0, n=768, bump_map_corre
     out = np.empty(tilt.shape)
     uu = (np.arange(n) + 0.5) / n
     psi = 2 * np.pi * (np.arange(n) + 0.5) / n
-    r = np.sqrt(uu / (1.0 - uu))[:, None]
+    r = (np.sqrt(-np.log1p(-uu)) if code == BECKMANN else np.sqrt(uu / (1.0 - uu)))[:, None]
     for idx in np.ndindex(tilt.shape):  # loop over a few parameter sets only; the quadrature is vectorised
         wi = direction(theta_o[idx], phi_o[idx])
         N = _closure_normal(tilted_normal(tilt[idx]), _Z, wi, bump_map_correction)
@@ -439,8 +506,8 @@ def albedo(tilt, alpha_x, alpha_y, theta_o=0.0, phi_o=0.0, n=768, bump_map_corre
         wo = lO[..., :1] * X + lO[..., 1:2] * Y + lO[..., 2:] * N
         valid = (lO[..., 2] >= 0) & (wo[..., 2] >= 0) & (cos_HI > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam_I = ggx_aniso_lambda(ax[idx], ay[idx], lI)
-            lam_O = ggx_aniso_lambda(ax[idx], ay[idx], lO)
+            lam_I = _lambda(code, ax[idx], ay[idx], lI)
+            lam_O = _lambda(code, ax[idx], ay[idx], lO)
             w = cos_HI / (lI[2] * lH[..., 2])
             f = w / (1.0 + lam_I + lam_O) if quantity == "eval" else w / (1.0 + lam_I)
         out[idx] = np.mean(np.where(valid, np.nan_to_num(f), 0.0))

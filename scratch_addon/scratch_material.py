@@ -200,7 +200,8 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_optio
     def table(entry):
         if entry is None:
             return None
-        fit = {"weights": entry["weights"][..., 0], "tilts": entry["tilts"], "widths": entry["widths"]}
+        fit = {"weights": entry["weights"][..., 0], "tilts": entry["tilts"], "widths": entry["widths"],
+               "dist": entry["dist"]}
         t = osl_gen.LobeTable.from_fit(fit, weights_rgb=entry["weights"])
         keep = entry["weights"].max(-1) > 0
         t.gamma = entry["gamma"][keep]
@@ -240,7 +241,9 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     step(0.4)
     lobe_data = None
     if params.mode == "lobes":
-        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
+        # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
+        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
+                                              dists="ggx" if params.backend == "svm" else "auto")
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()

@@ -33,11 +33,11 @@ def test_known_lobes_are_recovered():
     c = np.array([-0.9, -0.2, 0.7])                 # lobe centres on the cone
     t = 0.5 * (c + phi_o)
     a = np.array([0.08, 0.2, 0.01])
-    f = lf.lobe_model(phi_o, w, t, a, edges, alpha_x=1e-4)
-    res = lf.fit_lobes(f, phi_o, K=8, error_target=0.01)
+    f = lf.lobe_model(phi_o, w, t, a, edges, alpha_x=1e-4, dist=np.array([0, 1, 1]))   # GGX + 2 Beckmann
+    res = lf.fit_lobes(f, phi_o, K=8, error_target=0.01, dists="mixed")  # each lobe picks its distribution
     assert res.error <= 0.01
     assert res.n_lobes <= 4
-    fit = lf.lobe_model(phi_o, res.weights, res.tilts, res.widths, edges, alpha_x=res.alpha_x)
+    fit = lf.lobe_model(phi_o, res.weights, res.tilts, res.widths, edges, alpha_x=res.alpha_x, dist=res.dist)
     assert lf.relative_l1(fit, f) == pytest.approx(res.error, rel=1e-6)
     # the narrow lobe's centre is found to within a bin
     k = np.argmin(np.abs(res.widths - 0.01) + (res.weights == 0))
@@ -67,7 +67,8 @@ def test_fit_table_shapes_bounds_and_consistency(quartic_table):
     # the reported error is the error of the returned lobes against rho cos(phi_i) bin averages
     edges = lf.phi_bin_edges(M)
     f = quartic_table * (np.diff(np.sin(edges)) / np.diff(edges))[None, :]
-    fit = lf.lobe_model(phi[:, 0], r["weights"], r["tilts"], r["widths"], edges, alpha_x=r["alpha_x"])
+    assert r["dist"].shape == (M, K) and set(np.unique(r["dist"])) <= {0, 1}
+    fit = lf.lobe_model(phi[:, 0], r["weights"], r["tilts"], r["widths"], edges, alpha_x=r["alpha_x"], dist=r["dist"])
     np.testing.assert_allclose(lf.relative_l1(fit, f), r["error"], rtol=1e-6, atol=1e-12)
     # more lobes never make it worse on the median
     r8 = lf.fit_table(quartic_table, K=8)
@@ -75,16 +76,56 @@ def test_fit_table_shapes_bounds_and_consistency(quartic_table):
 
 
 def test_quartic_error_regression(quartic_table):
-    # Guards the current quality on the shallow quartic (see report: ~10-15 % median at K = 8,
-    # limited by the hard cut-offs of the slices vs GGX's heavy tails); must not regress.
+    # Guards the quality on the shallow quartic at M = 64 (measured: median 2.9 %, p95 5.3 % at
+    # K = 8 with Beckmann/GGX + quantile restarts; it was 14 % with GGX-only greedy).  GGX-only must
+    # be clearly worse: the Beckmann lobes are what makes the box edges.
     r = lf.fit_table(quartic_table, K=8)
-    assert np.median(r["error"]) < 0.2
+    assert np.median(r["error"]) < 0.04
+    g = lf.fit_table(quartic_table, K=8, dists="ggx", max_iter=4)
+    assert np.median(g["error"]) > np.median(r["error"]) + 0.01
 
 
-@pytest.mark.xfail(strict=True, reason="issue #4 target (<= 3 % rel. L1 per slice at K <= 8) not met on quartic")
+def test_quartic_meets_issue_target_with_12_lobes(quartic_table):
+    # The 3 % target is reached on every slice's median and (to 0.5 %) p95 with K = 12 (measured
+    # p95 3.0 %, max 3.4 %); Cycles allows 64 closures per shading point.
+    r = lf.fit_table(quartic_table, K=12)
+    assert np.median(r["error"]) <= 0.03
+    assert np.percentile(r["error"], 95) <= 0.035
+
+
+@pytest.mark.xfail(strict=True, reason="issue #4 target (<= 3 % p95 rel. L1 at K <= 8) not met on smooth profiles")
 def test_quartic_meets_issue_target(quartic_table):
     r = lf.fit_table(quartic_table, K=8)
     assert np.percentile(r["error"], 95) <= 0.03
+
+
+def test_rows_at_interpolates_linearly_between_bin_centres():
+    rng = np.random.default_rng(0)
+    rho = rng.random((16, 16))
+    c = lf.phi_bin_centres(16)
+    np.testing.assert_allclose(lf.rows_at(rho, c), rho, rtol=0, atol=1e-12)        # at the centres: the rows
+    mid = 0.5 * (c[3] + c[4])
+    np.testing.assert_allclose(lf.rows_at(rho, [mid])[0], 0.5 * (rho[3] + rho[4]), atol=1e-12)
+    np.testing.assert_allclose(lf.rows_at(rho, [-np.pi / 2])[0], rho[0], atol=1e-12)   # clamped at the ends
+    assert lf.rows_at(rho[..., None].repeat(3, -1), c[:2]).shape == (2, 16, 3)
+    # the shader's slices: S = 8 slices of a 16-bin table sit on bin edges -> mean of two rows
+    np.testing.assert_allclose(lf.rows_at(rho, lf.slice_centres(8)), 0.5 * (rho[0::2] + rho[1::2]), atol=1e-12)
+
+
+def test_fit_table_at_given_phi_o_fits_those_rows(quartic_table):
+    S = 16
+    po = lf.slice_centres(S)
+    rows = lf.rows_at(quartic_table, po)
+    r = lf.fit_table(rows, K=8, phi_o=po)
+    np.testing.assert_array_equal(r["phi_o"], po)
+    edges = lf.phi_bin_edges(M)
+    f = rows * (np.diff(np.sin(edges)) / np.diff(edges))[None, :]
+    fit = lf.lobe_model(po, r["weights"], r["tilts"], r["widths"], edges, alpha_x=r["alpha_x"], dist=r["dist"])
+    np.testing.assert_allclose(lf.relative_l1(fit, f), r["error"], rtol=1e-6, atol=1e-12)
+    # fitting the rows at other angles gives a different (worse) model for these rows
+    wrong = lf.lobe_model(po + np.pi / M, r["weights"], r["tilts"], r["widths"], edges, alpha_x=r["alpha_x"],
+                          dist=r["dist"])
+    assert np.median(lf.relative_l1(wrong, f)) > np.median(r["error"])
 
 
 def test_bad_input_raises():
@@ -100,6 +141,14 @@ def test_bad_input_raises():
         lf.fit_lobes(np.array([1.0, np.nan, 1.0, 1.0]), 0.0)
     with pytest.raises(ValueError, match="min_width"):
         lf.fit_lobes(np.ones(16), 0.0, min_width=1e-7)
+    with pytest.raises(ValueError, match="dists"):
+        lf.fit_lobes(np.ones(16), 0.0, dists="phong")
+    with pytest.raises(ValueError, match="phi_o"):
+        lf.fit_table(np.ones((3, 8)), phi_o=[0.0, 0.1])
+    with pytest.raises(ValueError, match="phi_o"):
+        lf.fit_table(np.ones((2, 8)), phi_o=[0.0, 1.6])
+    with pytest.raises(ValueError, match="phi_o"):
+        lf.rows_at(np.ones((8, 8)), [2.0])
 
 
 @settings(max_examples=25, deadline=None)
@@ -116,5 +165,6 @@ def test_fuzz_random_smooth_slices(phi_o, K, seed, n_bumps):
     assert np.all(np.isfinite(r.weights)) and np.all(r.weights >= 0)
     assert np.all(np.isfinite(r.tilts)) and np.all((r.widths > 0) & (r.widths <= 1))
     assert np.isfinite(r.error) and r.error >= 0
+    assert set(np.unique(r.dist)) <= {0, 1}
     if n_bumps == 0:
         assert r.n_lobes == 0 and r.error == 0

@@ -11,7 +11,7 @@ from scipy.optimize import nnls
 
 from osl import const_array
 from precompute import scratch_layers as sl
-from precompute.scratch_lobes import downsample_slices, nnls_batched
+from precompute.scratch_lobes import nnls_batched
 
 
 @pytest.mark.parametrize("kwargs, needle", [
@@ -61,15 +61,6 @@ def test_nnls_batched_matches_scipy(seed, K, m):
         r_ours = np.linalg.norm(A[i] @ x[i] - b[i])
         r_ref = np.linalg.norm(A[i] @ ref - b[i])
         assert np.all(x[i] >= 0) and r_ours <= r_ref * (1 + 1e-4) + 1e-9
-
-
-def test_downsample_slices_preserves_means_and_rejects_bad_counts():
-    rho = np.random.default_rng(1).random((16, 16, 3))
-    d = downsample_slices(rho, 4)
-    assert d.shape == (4, 16, 3)
-    np.testing.assert_allclose(d.mean(0), rho.mean(0))
-    with pytest.raises(ValueError, match="slices"):
-        downsample_slices(rho, 5)
 
 
 @given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=32), min_size=1, max_size=20))
