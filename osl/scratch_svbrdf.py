@@ -119,7 +119,10 @@ def generate(spec: ShaderSpec) -> str:
            '#include "stdcycles.h"']
     if layered:
         src.append('#include "node_voronoi.h"')
-    src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}")
+    per_slice = int(np.diff(spec.lobes_m.start).max(initial=0))
+    if not lossless:
+        per_slice += int(np.diff(spec.lobes_0.start).max(initial=0))
+    src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}\n#define KMAX2 {max(per_slice, 1)}")
     if spec.lobe_mode not in ("pick", "all"):
         raise ValueError(f"lobe_mode must be 'pick' or 'all', got {spec.lobe_mode!r}")
     layer_lobes = _LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)]
@@ -206,36 +209,56 @@ closure color lobe_set(int start[], int dist[], float tilt[], float ay[], float 
 '''
 
 _LOBE_FUNC_PICK = r'''
-// Total (channel-mean) weight of a lobe set, for picking one lobe with probability ~ weight.
-float set_weight(int start[], float w[], float gam[], int s, float x, int use_r, int r_is_m)
+// Pick one lobe of slice s among the rho_m lobes (weight R_gamma, or 1 when lossless) and the rho_0
+// lobes (weight 1 - R_gamma), with probability proportional to the channel-mean weight, and return
+// it weighted by 1 / probability. Weights are computed once (x^gamma = exp(gamma ln x)).
+closure color pick_lobe(int sm[], int dm[], float tm[], float am[], float wm[], float gm[],
+                        int s0[], int d0[], float t0[], float a0[], float w0[], float g0[],
+                        int use0, int s, float x, float h, vector u, vector v, normal n)
 {
+    float lw[KMAX2];
+    float lx = (x > 0.0) ? log(x) : 0.0;
+    int nm = sm[s + 1] - sm[s];
+    int n0 = use0 ? s0[s + 1] - s0[s] : 0;
     float total = 0.0;
-    for (int j = start[s]; j < start[s + 1]; j++)
-        total += lobe_factor(gam[j], x, use_r, r_is_m) * (w[3 * j] + w[3 * j + 1] + w[3 * j + 2]);
-    return total;
-}
-
-// The lobe at cumulative weight ``target`` (< the set's total), weighted by 1 / probability.
-closure color set_pick(int start[], int dist[], float tilt[], float ay[], float w[], float gam[], int s, float x,
-                       int use_r, int r_is_m, float target, float total, vector u, vector v, normal n)
-{
-    float acc = 0.0;
-    int last = -1;
-    for (int j = start[s]; j < start[s + 1]; j++) {
-        float lj = lobe_factor(gam[j], x, use_r, r_is_m) * (w[3 * j] + w[3 * j + 1] + w[3 * j + 2]);
-        if (lj <= 0.0)
+    for (int j = 0; j < nm; j++) {
+        int q = sm[s] + j;
+        float r = use0 ? ((x > 0.0) ? exp(gm[q] * lx) : 0.0) : 1.0;
+        lw[j] = r * (wm[3 * q] + wm[3 * q + 1] + wm[3 * q + 2]);
+        total += lw[j];
+    }
+    for (int j = 0; j < n0; j++) {
+        int q = s0[s] + j;
+        float r = (x > 0.0) ? exp(g0[q] * lx) : 0.0;
+        lw[nm + j] = (1.0 - r) * (w0[3 * q] + w0[3 * q + 1] + w0[3 * q + 2]);
+        total += lw[nm + j];
+    }
+    closure color c = 0;
+    if (total <= 0.0)
+        return c;
+    float target = h * total, acc = 0.0;
+    int pick = -1;
+    for (int j = 0; j < nm + n0; j++) {
+        if (lw[j] <= 0.0)
             continue;
-        last = j;
-        acc += lj;
+        pick = j;
+        acc += lw[j];
         if (target < acc)
             break;
     }
-    closure color none = 0;
-    if (last < 0)
-        return none;
-    color wj = lobe_factor(gam[last], x, use_r, r_is_m) * color(w[3 * last], w[3 * last + 1], w[3 * last + 2]);
-    float lum = wj[0] + wj[1] + wj[2];
-    return (total / lum) * wj * lobe(dist[last], tilt[last], ay[last], u, v, n);
+    if (pick < 0)
+        return c;
+    // weight / probability = (factor * rgb) / (factor * sum(rgb) / total) = total * rgb / sum(rgb)
+    if (pick < nm) {
+        int q = sm[s] + pick;
+        color w = color(wm[3 * q], wm[3 * q + 1], wm[3 * q + 2]);
+        c = (total / (w[0] + w[1] + w[2])) * w * lobe(dm[q], tm[q], am[q], u, v, n);
+    } else {
+        int q = s0[s] + pick - nm;
+        color w = color(w0[3 * q], w0[3 * q + 1], w0[3 * q + 2]);
+        c = (total / (w[0] + w[1] + w[2])) * w * lobe(d0[q], t0[q], a0[q], u, v, n);
+    }
+    return c;
 }
 '''
 
@@ -313,8 +336,16 @@ _ALPHA = r'''
             vector2 cell_f = vector2(floor(y.x), floor(y.y));
             int2 cell = vec2_to_int2(cell_f);
             float miss = 1.0;
+            float fx = y.x - cell_f.x, fy = y.y - cell_f.y;  // position inside the cell
+            float reach = d + R;
             for (int j = -1; j <= 1; j++) {
+                // distance from y to the neighbour cell's box: a cell farther than d + R cannot hold
+                // a feature point whose disk meets the footprint, so it is skipped before hashing
+                float by = (j < 0) ? fy : ((j > 0) ? 1.0 - fy : 0.0);
+                if (by >= reach) continue;
                 for (int i = -1; i <= 1; i++) {
+                    float bx = (i < 0) ? fx : ((i > 0) ? 1.0 - fx : 0.0);
+                    if (bx * bx + by * by >= reach * reach) continue;
                     int2 off = {i, j};
                     vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
                     miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
@@ -389,18 +420,12 @@ _LAYER_HEAD = r'''
 
 _RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
     ("pick", True): r'''
-        float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 0, 1);
-        closure color rho = set_pick(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 0, 1, h_lobe * wm, wm, u, v, n);
+        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA,
+                                      LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, 0, s, x, h_lobe, u, v, n);
 ''',
     ("pick", False): r'''
-        float wm = set_weight(LM_START, LM_W, LM_GAMMA, s, x, 1, 1);
-        float w0 = set_weight(L0_START, L0_W, L0_GAMMA, s, x, 1, 0);
-        float target = h_lobe * (wm + w0);
-        closure color rho = 0;
-        if (target < wm)
-            rho = set_pick(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, 1, 1, target, wm + w0, u, v, n);
-        else
-            rho = set_pick(L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, 1, 0, target - wm, wm + w0, u, v, n);
+        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA,
+                                      L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, 1, s, x, h_lobe, u, v, n);
 ''',
     ("all", True): r'''
         closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
