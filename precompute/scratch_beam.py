@@ -56,7 +56,10 @@ class ExitRecords:
     shape ``(n, S, C)`` for the S requested theta_o slices; ``flux_ab``: ``(A, B)`` with
     ``A cos(phi_i) + B sin(phi_i)`` = the beam width per period of incident beam near this
     sample (= ``weight * cos(phi_i)`` at the sample); ``lost``: per-sample flux not accounted for
-    (bounce/energy limits, degenerate rays).
+    (bounce/energy limits, degenerate rays).  ``bounds``: ``(n, 2, 2)``, the level coefficients
+    ``(c1, c2)`` of the lower and upper bounding (unfolded) points: the incident ray through the
+    point has level ``c1 cos(phi_i) + c2 sin(phi_i)`` (= ``x cos - h sin``), so the beam width is
+    ``upper - lower`` (= ``flux_ab`` at the sample) for as long as the same points bound it.
     """
 
     sample: np.ndarray
@@ -68,6 +71,7 @@ class ExitRecords:
     fresnel: np.ndarray | None
     flux_ab: np.ndarray
     lost: np.ndarray
+    bounds: np.ndarray | None = None
 
 
 class _Geometry:
@@ -134,7 +138,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     C = fresnel.channels if (fresnel is not None and S) else 0
     cos_scales = np.asarray(cos_scales, np.float64)
 
-    out = {k: [] for k in ("sample", "pid", "pidm", "nb", "phi", "w", "f", "ab")}
+    out = {k: [] for k in ("sample", "pid", "pidm", "nb", "phi", "w", "f", "ab", "bd")}
     lost = np.zeros(E)
     inc = np.cos(phi_i)  # incident beam width per period (period = 1)
 
@@ -191,6 +195,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         fresnel=(np.concatenate(out["f"]) if out["f"] else np.zeros((0, S, C))) if C else None,
         flux_ab=np.concatenate(out["ab"]) if out["ab"] else np.zeros((0, 2)),
         lost=np.maximum(lost, 0.0) / inc,
+        bounds=np.concatenate(out["bd"]) if out["bd"] else np.zeros((0, 2, 2)),
     )
 
 
@@ -355,6 +360,11 @@ def _record(out: dict, bm: dict, esc: dict, bounce: int, inc: np.ndarray, phi_i:
     a, bb = -D[:, 0], D[:, 1]
     sgn = np.where(a * np.cos(phi_i[smp]) + bb * np.sin(phi_i[smp]) >= 0.0, 1.0, -1.0)
     out["ab"].append(np.stack([a * sgn, bb * sgn], -1))
+    # level coefficients (x, -h) of the two points; the lower one first (width = A cos + B sin > 0)
+    c_lo = np.stack([esc["Phi"][ok][:, 0], -esc["Phi"][ok][:, 1]], -1)
+    c_hi = np.stack([esc["Plo"][ok][:, 0], -esc["Plo"][ok][:, 1]], -1)
+    pos = (sgn > 0)[:, None]
+    out["bd"].append(np.stack([np.where(pos, c_lo, c_hi), np.where(pos, c_hi, c_lo)], 1))
     out["sample"].append(smp)
     out["pid"].append(bm["pid"][b])
     out["pidm"].append(bm["pidm"][b])
