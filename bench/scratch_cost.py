@@ -53,6 +53,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--res", type=int, nargs=2, default=(192, 128))
     ap.add_argument("--spp", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--skip-repeats", type=int, default=9,
+                    help="interleaved pairs for the add-on-registered vs not ratio (a small effect needs many)")
+    ap.add_argument("--only-skip", action="store_true", help="measure only the skip ratio")
     a = ap.parse_args(argv)
     if a.quick:
         a.res, a.spp, a.repeats = (64, 48), 8, 1
@@ -80,6 +83,8 @@ def main(argv: list[str]) -> int:
     # skip: the baseline scene with the add-on registered (nothing of ours in the scene)
     setups += [("baseline, add-on registered", baseline, False)]
 
+    if a.only_skip:
+        return _skip_ratio(a, addon, render, baseline, tmp)
     for _name, make, osl in setups:  # warm the table cache so timings are render-only
         _scene(make, render, osl, 1, (8, 8))
     times = {name: [] for name, _m, _o in setups}
@@ -124,4 +129,27 @@ def main(argv: list[str]) -> int:
     fig.tight_layout()
     fig.savefig(out_path("scratch_cost.png"), dpi=120)
     print(f"wrote {out_path('scratch_cost.png')}")
+    return 0
+
+
+def _skip_ratio(a, addon, render, baseline, tmp) -> int:
+    """A scene without scratch materials, rendered with the add-on registered vs not, in interleaved
+    pairs (median of ``--skip-repeats``): the add-on installs no render hooks, so the ratio is ~1."""
+    from bench._util import report
+
+    times = {"not registered": [], "registered": []}
+    for _ in range(a.skip_repeats):
+        for key in times:
+            if key == "registered":
+                addon.register()
+            try:
+                scene = _scene(baseline, render, False, a.spp, a.res)
+                times[key].append(render.render_array(scene, tmp, "skip")[1])
+            finally:
+                if key == "registered":
+                    addon.unregister()
+    med = {k: statistics.median(v) for k, v in times.items()}
+    rows = [(k, med[k], med[k] / med["not registered"], min(v), max(v)) for k, v in times.items()]
+    report("scratch_cost_skip", ["add-on", "median s", "ratio", "min s", "max s"], rows,
+           f"{a.res[0]}x{a.res[1]} px, {a.spp} spp, SVM anisotropic GGX only; {a.skip_repeats} interleaved pairs.")
     return 0
