@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import api, osl_compile, presets
+from . import api, osl_compile, presets, scratch_material
 from .ui_utils import assign_material, poll_active_mesh, progress
 
 
@@ -75,6 +75,10 @@ class SCRATCH_OT_update_material(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         context.scene.cycles.shading_system = True
+        try:
+            scratch_material.check_uvs(mat)
+        except ValueError as exc:
+            self.report({"WARNING"}, str(exc))
         err = mat.get("scratch_addon_fit_error")
         self.report({"INFO"}, f"Updated {mat.name}" + (f" (lobe fit error {100 * err:.1f} %)" if err is not None else ""))
         return {"FINISHED"}

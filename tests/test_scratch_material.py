@@ -195,6 +195,8 @@ def test_missing_uvs_is_a_clear_error(addon, scene):
     mesh.materials.append(mat)
     with pytest.raises(ValueError, match="no UV map"):
         addon.scratch_material.check_uvs(mat)
+    with pytest.raises(ValueError, match="NoUV.*no UV map"):  # the render API refuses too (CLI: exit 2)
+        addon.api.render(str(scene.render.filepath or "/tmp/x.png"), samples=1, res=(8, 8))
 
 
 def test_saved_blend_renders_identically_without_the_addon(addon, scene, render_dir, tmp_path):
