@@ -28,10 +28,9 @@ def measured_like(seed: int = 3, sigma: float = 8.0, amp: float = 0.004):
     return profiles.tabulated(x, -0.25 * np.sin(np.pi * x) ** 2 + amp * n / n.std(), name="measured_like")
 
 
-def _profiles(quick: bool):
+def _profiles(quick: bool, seg: int):
     from precompute import profiles
 
-    seg = 1024 if quick else 4096
     out = [("quartic_0.1", profiles.quartic(0.1, segments=seg)), ("vgroove_45", profiles.v_groove(45.0))]
     if not quick:
         out += [("quartic_0.3", profiles.quartic(0.3, segments=seg)), ("quartic_1.0", profiles.quartic(1.0, segments=seg)),
@@ -43,10 +42,20 @@ def _profiles(quick: bool):
 def main(argv) -> int:
     from precompute import fresnel, lobe_fit, scratch_brdf
 
-    quick = "--quick" in argv
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m bench lobe_fit")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--ks", type=int, nargs="+", default=None, help="lobe budgets K to sweep")
+    ap.add_argument("--dists", nargs="+", default=None, help="auto / ggx / beckmann")
+    ap.add_argument("--segments", type=int, default=None, help="polyline segments of the analytic profiles")
+    ap.add_argument("--supersample", type=int, default=None, help="scratch_brdf.simulate supersample")
+    a = ap.parse_args(argv)
+    quick = a.quick
     M, S = (64, 32) if quick else (256, 128)
-    Ks = [1, 4, 8] if quick else [1, 2, 3, 4, 6, 8, 12, 16]
-    dist_modes = ["auto"] if quick else ["auto", "ggx"]
+    Ks = a.ks or ([1, 4, 8] if quick else [1, 2, 3, 4, 6, 8, 12, 16])
+    dist_modes = a.dists or (["auto"] if quick else ["auto", "ggx"])
+    seg = a.segments or (1024 if quick else 4096)
     fr = fresnel.conductor_preset("iron")
     phi_o = lobe_fit.slice_centres(S)
     rows, curves = [], {}
@@ -62,8 +71,8 @@ def main(argv) -> int:
         print(" ".join(str(x) if not isinstance(x, float) else f"{x:.4f}" for x in rows[-1]), flush=True)
         return e
 
-    for name, prof in _profiles(quick):
-        brdf = scratch_brdf.simulate(prof, resolution=M, fresnel=fr, cache=True)
+    for name, prof in _profiles(quick, seg):
+        brdf = scratch_brdf.simulate(prof, resolution=M, fresnel=fr, cache=True, supersample=a.supersample)
         rm = np.asarray(brdf.rho_m, float)
         rm = rm if rm.ndim == 2 else rm[..., 0]
         r0 = np.asarray(brdf.rho0, float)
@@ -78,7 +87,7 @@ def main(argv) -> int:
                 run(name, f"rho0_{cname}", r0[..., c], 8, "auto")
     report("lobe_fit", ["profile", "table", "dists", "K", "err_median", "err_p95", "err_max", "lobes_used",
                         "beckmann_frac", "fit_s"], rows,
-           notes=f"M = {M} phi_i bins, S = {S} slices at phi_o = -pi/2 + (s+1/2) pi/S (rows linearly interpolated). "
+           notes=f"Analytic profiles with {seg} segments. M = {M} phi_i bins, S = {S} slices at phi_o = -pi/2 + (s+1/2) pi/S (rows linearly interpolated). "
                  "Relative L1 per slice between the lobes' cone-collapsed Cycles response (Smith G and horizon "
                  "losses included) and rho cos(phi_i) bin averages; error_target = 0.03 (slices stop adding lobes "
                  "once met). dists: auto = Beckmann fit + GGX refit of slices above target, better kept; ggx = GGX "
