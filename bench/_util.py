@@ -3,11 +3,30 @@ from __future__ import annotations
 
 import os
 import statistics
+import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Callable, Sequence
 
 OUT = Path(__file__).resolve().parent / "out"
+ROOT = OUT.parent.parent
+
+
+def blender(register: bool = False):
+    """bpy, hermetic (a temporary ``BLENDER_USER_RESOURCES``), with the repo root on ``sys.path``;
+    returns the ``scratch_addon`` package, registered when asked (an earlier registration is kept)."""
+    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
+    if str(ROOT) not in sys.path:
+        sys.path.insert(0, str(ROOT))
+    import scratch_addon
+
+    if register:
+        try:
+            scratch_addon.register()
+        except ValueError:
+            pass  # already registered
+    return scratch_addon
 
 
 def out_path(filename: str) -> Path:

@@ -31,7 +31,6 @@ def main(argv) -> int:
     from precompute.biscale import (BiscaleTile, brute_force_fr, brute_force_fr_at, precompute_M, psnr,
                                     render_reference_fr, _M_MEMO)
     from precompute.biscale_brdfs import material_lobes
-    from precompute.biscale_geometry import groove_tile, pyramid_tile
 
     cache.set_cache_dir(tempfile.mkdtemp(prefix="biscale_bench_"))  # cold cache: measure real precompute
     opts = dict(dir_res=6, normal_res=41, n_facets=2000, l_M=120) if quick else {}

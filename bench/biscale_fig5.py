@@ -44,22 +44,15 @@ def tiles(quick: bool):
 
 
 def _setup():
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp())
-    if ROOT not in sys.path:
-        sys.path.insert(0, ROOT)
-    import scratch_addon
+    from bench._util import blender
 
-    try:
-        scratch_addon.register()
-    except ValueError:
-        pass  # already registered
+    blender(register=True)
     from scratch_addon import biscale_material, render
 
     return render, biscale_material
 
 
 def _scene(render, res, spp, osl):
-    import bpy
 
     scene = render.reset_scene()
     render.studio_world(scene, strength=0.3)

@@ -10,7 +10,6 @@ and a PNG.  ``--quick``: 4 configurations, 16x16 px, 64 spp.
 """
 from __future__ import annotations
 
-import os
 import sys
 import tempfile
 from pathlib import Path
@@ -35,7 +34,6 @@ shader tilted_lobe(float tilt = 0.0, float ax = 0.0001, float ay = 0.1, int beck
 
 def build_scene(render, materials, osl_compile, samples: int, res: int, phi_o: float, seed: int = 1):
     """Plane + white world + ortho camera at view angle phi_o (radians); returns (scene, script node)."""
-    import bpy
 
     scene = render.reset_scene()
     render.uniform_world(scene, 1.0)
@@ -52,9 +50,9 @@ def build_scene(render, materials, osl_compile, samples: int, res: int, phi_o: f
 
 
 def _setup_bpy():
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
+    from bench._util import blender
+
+    blender()
     from scratch_addon import materials, osl_compile, render
 
     return render, materials, osl_compile

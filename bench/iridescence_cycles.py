@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import os
 import statistics
-import sys
 import tempfile
 
 import numpy as np
@@ -122,15 +121,9 @@ def errors(img, ref, block=8):
 
 
 def _setup():
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp())
-    if ROOT not in sys.path:
-        sys.path.insert(0, ROOT)
-    import scratch_addon
+    from bench._util import blender
 
-    try:
-        scratch_addon.register()
-    except ValueError:
-        pass   # already registered
+    blender(register=True)
     from scratch_addon import iridescence_material as im, render
 
     return render, im
@@ -139,7 +132,6 @@ def _setup():
 def _timed_runs(configs, build, reps, tmp):
     """Interleaved renders: for each of ``reps`` rounds, every config in turn (build, then render).
     Returns {name: (median seconds, last image)}."""
-    import statistics
 
     times, imgs = {n: [] for n, _ in configs}, {}
     for rep in range(reps):

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -64,9 +63,9 @@ def main(argv: list[str]) -> int:
     field = (512, 512) if a.quick else (1024, 1024)
     if a.quick:
         a.res, a.spp, a.texture_size, a.repeats = (160, 106), 16, 128, 1
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
+    from bench._util import blender
+
+    blender()
     from scratch_addon import microgeometry_ops as mg
     from scratch_addon import render
 

@@ -12,9 +12,7 @@ error measured as relative L1 against a high-sample SVM reference.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
@@ -22,9 +20,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _setup(kind: str):
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
+    from bench._util import blender
+
+    blender()
     from scratch_addon import materials, osl_compile, render
 
     scene = render.reset_scene()

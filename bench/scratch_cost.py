@@ -15,9 +15,7 @@ in one process, median of --repeats; ratios are against the SVM anisotropic GGX 
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
@@ -25,10 +23,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _modules():
-    os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
-    import scratch_addon
+    from bench._util import blender
+
+    scratch_addon = blender()
     from scratch_addon import materials, render, scratch_material
 
     return scratch_addon, materials, render, scratch_material

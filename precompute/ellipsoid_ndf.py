@@ -21,7 +21,7 @@ is a batched Levenberg-Marquardt (vectorised over many tables at once, used for 
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, NamedTuple
 
 import numpy as np
 

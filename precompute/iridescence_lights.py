@@ -333,7 +333,6 @@ def _check_polygon(vertices, two_sided):
         raise ValueError(f"vertices must have shape (..., N>=3, 3) (got {V.shape})")
     if V.shape[-2] > 64:
         raise ValueError("vertices: at most 64 vertices per polygon")
-    e1 = V[..., 1, :] - V[..., 0, :]
     nrm = np.zeros(V.shape[:-2] + (3,))
     for j in range(1, V.shape[-2] - 1):              # Newell-free fan normal (few vertices)
         nrm = nrm + np.cross(V[..., j, :] - V[..., 0, :], V[..., j + 1, :] - V[..., 0, :])

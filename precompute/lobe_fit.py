@@ -258,7 +258,6 @@ class _Fitter:
         self.w[idx, :K], self.c[idx, :K], self.l[idx, :K] = w, c, l
 
     def run(self):
-        S = len(self.f)
         nonzero = np.sum(np.abs(self.f), axis=1) > 0
         err = np.where(nonzero, np.inf, 0.0)
         todo = np.flatnonzero(nonzero)

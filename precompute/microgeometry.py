@@ -39,7 +39,7 @@ from scipy import fft as sfft
 from scipy.ndimage import map_coordinates
 
 from .ellipsoid_ndf import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
-from .heightfield import HeightField, as_heightfield, detilt as _detilt
+from .heightfield import HeightField, as_heightfield
 
 __all__ = [
     "NDFTable",

@@ -397,7 +397,6 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     loL, hiL, loR, hiR = bL[:, :2], bL[:, 2:], bR[:, :2], bR[:, 2:]
     r0 = rid[start]
     gb = b[start]
-    G = gb.size
     sgn = np.where(nb[r0] % 2 == 0, 1.0, -1.0)
     c = phi_o[r0] - sgn * recs["node"][r0]  # phi_o = sgn * phi_i + c along the path
     pa, pb = edges[gb], edges[gb + 1]

@@ -51,7 +51,6 @@ def trace_mc(verts: np.ndarray, resolution: int, rays_per_slice: int, seed: int 
     verts = np.asarray(verts, np.float64)
     M, N = int(resolution), int(rays_per_slice)
     rng = np.random.default_rng(seed)
-    P = verts.shape[0] - 1
     # two periods of segments, for rays travelling towards +x (mirror x for the others)
     ax = np.concatenate([verts[:-1, 0], verts[:-1, 0] + 1.0])
     ah = np.concatenate([verts[:-1, 1], verts[:-1, 1]])

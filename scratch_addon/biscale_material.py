@@ -231,7 +231,6 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
         if dr > max_res:
             raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
                              f"{max_res}, got {dr}")
-    bs = _deps.sibling("precompute.biscale")
     fitmod = _deps.sibling("precompute.biscale_fit")
     cache = _deps.sibling("precompute.cache")
     step = progress or (lambda f: None)

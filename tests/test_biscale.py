@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 from precompute import cache
 from precompute.biscale import (BiscaleTile, EffectiveBRDF, brute_force_fr, effective_brdf, psnr,
                                 render_reference_fr)
-from precompute.biscale_geometry import flat_tile, groove_tile, pyramid_tile, heightfield_tile
+from precompute.biscale_geometry import flat_tile, groove_tile, pyramid_tile
 
 SMALL = dict(n_facets=1500, dir_res=6, normal_res=41, l_M=120)
 CT = {"model": "cook_torrance", "alpha": 0.3, "F0": (0.9, 0.6, 0.3)}

@@ -45,7 +45,6 @@ def test_same_seed_renders_bit_identical(addon, scene, render_dir):
 
 
 def _osl_material(addon, name="OSL GGX"):
-    import bpy
 
     mat = addon.materials.new_material(name)
     tree = mat.node_tree
