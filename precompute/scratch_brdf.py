@@ -64,6 +64,7 @@ phi_i of the unaccounted fraction), stored with the table.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -627,7 +628,10 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
               "supersample": int(supersample), "split_bounces": bool(split_bounces), "max_bounces": int(max_bounces)}
     if method == "mc":
         inputs.update(rays_per_slice=int(rays_per_slice), seed=int(seed))
-    arrays = _cache.cached_arrays("scratch_brdf", VERSION, inputs, compute, enabled=bool(cache))
+    # the cache key includes the tracers' source, so a change of the simulation code never reuses old tables
+    version = VERSION + "-" + _cache.code_version(sys.modules[__name__], sys.modules[trace_exact.__module__],
+                                                  sys.modules[trace_mc.__module__])
+    arrays = _cache.cached_arrays("scratch_brdf", version, inputs, compute, enabled=bool(cache))
     meta = {"profile": profile.name, "profile_params": dict(profile.params), "segments": profile.segments,
             "fresnel": None if fresnel is None else fresnel.cache_key(), "method": method,
             "supersample": int(supersample)}
