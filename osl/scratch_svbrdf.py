@@ -49,26 +49,17 @@ class LobeTable:
     dist: np.ndarray = None  # [L] 0 = GGX, 1 = Beckmann (None: all GGX)
 
     @classmethod
-    def from_fit(cls, fit: dict, weights_rgb=None, gamma_table=None) -> "LobeTable":
-        """From ``precompute.lobe_fit.fit_table`` output (zero-weight slots dropped)."""
+    def from_fit(cls, fit: dict) -> "LobeTable":
+        """From ``precompute.scratch_lobes.lobe_tables`` entries (``weights`` [S, K] or [S, K, 3], ``tilts``,
+        ``widths``, optional ``dist`` and ``gamma`` [S, K]); zero-weight slots are dropped."""
         w = np.asarray(fit["weights"], float)
-        M, K = w.shape
-        rgb = np.repeat(w[..., None], 3, -1) if weights_rgb is None else np.asarray(weights_rgb, float)
-        keep = (rgb.max(-1) > 0)
-        counts = keep.sum(1)
-        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        tilt = np.asarray(fit["tilts"], float)[keep]
-        width = np.asarray(fit["widths"], float)[keep]
-        if gamma_table is None:
-            gamma = np.ones(int(start[-1]))
-        else:
-            g = np.asarray(gamma_table, float)  # [M, M] γ(φo, φi): sample at each lobe's centre φi = 2t - φo
-            phi_o = -np.pi / 2 + (np.arange(M) + 0.5) * np.pi / M
-            phi_c = 2.0 * np.asarray(fit["tilts"], float) - phi_o[:, None]
-            i = np.clip(np.floor((phi_c + np.pi / 2) / np.pi * g.shape[1]).astype(int), 0, g.shape[1] - 1)
-            gamma = g[np.arange(M)[:, None], i][keep] if g.shape[0] == M else np.ones(int(start[-1]))
-        dist = np.asarray(fit["dist"])[keep].astype(int) if "dist" in fit else np.zeros(int(start[-1]), int)
-        return cls(start, tilt, width, rgb[keep], gamma, dist)
+        rgb = np.repeat(w[..., None], 3, -1) if w.ndim == 2 else w
+        keep = rgb.max(-1) > 0
+        start = np.concatenate([[0], np.cumsum(keep.sum(1))]).astype(np.int64)
+        n = int(start[-1])
+        take = lambda key, default: np.asarray(fit[key])[keep] if key in fit else default  # noqa: E731
+        return cls(start, np.asarray(fit["tilts"], float)[keep], np.asarray(fit["widths"], float)[keep], rgb[keep],
+                   take("gamma", np.ones(n)).astype(float), take("dist", np.zeros(n, int)).astype(int))
 
     @property
     def n_slices(self) -> int:

@@ -198,14 +198,7 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_optio
         lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
 
     def table(entry):
-        if entry is None:
-            return None
-        fit = {"weights": entry["weights"][..., 0], "tilts": entry["tilts"], "widths": entry["widths"],
-               "dist": entry["dist"]}
-        t = osl_gen.LobeTable.from_fit(fit, weights_rgb=entry["weights"])
-        keep = entry["weights"].max(-1) > 0
-        t.gamma = entry["gamma"][keep]
-        return t
+        return None if entry is None else osl_gen.LobeTable.from_fit(entry)
 
     spec = osl_gen.ShaderSpec(
         lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]), alpha_x=lobe_data["alpha_x"],
