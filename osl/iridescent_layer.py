@@ -58,6 +58,11 @@ import numpy as np
 
 from . import const_array
 
+try:  # installed extension: precompute is a sibling package
+    from ..precompute.scratch_set import cell_pairs, csr_from_pairs
+except ImportError:  # repo root on sys.path: top-level packages
+    from precompute.scratch_set import cell_pairs, csr_from_pairs
+
 SIGMA_UM = 60.0
 RGB_WAVELENGTHS_UM = (0.630, 0.532, 0.465)   # = precompute.iridescence.RGB_WAVELENGTHS_UM
 ROUTES = ("lobes", "lights")
@@ -202,20 +207,12 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: f
     bhi = np.floor((np.maximum(p0, p1) + reach_uv - lo) / cell).astype(np.int64)
     blo = np.clip(blo, 0, [nx - 1, ny - 1])
     bhi = np.clip(bhi, 0, [nx - 1, ny - 1])
-    span = bhi - blo + 1
-    n = span[:, 0] * span[:, 1]
-    sid = np.repeat(np.arange(M), n)
-    k = np.arange(sid.size) - np.repeat(np.cumsum(n) - n, n)
-    cx = blo[sid, 0] + k % span[sid, 0]
-    cy = blo[sid, 1] + k // span[sid, 0]
+    sid, cx, cy = cell_pairs(blo, bhi)
     corner = lo + np.stack([cx, cy], 1) * cell
     dist = segment_box_distance(p0[sid], p1[sid], corner, corner + cell)
     keep = dist <= reach_uv * (1 + 1e-9) + 1e-12
-    cid = (cy * nx + cx)[keep]
-    sid = sid[keep]
-    order = np.argsort(cid, kind="stable")
-    start = np.concatenate([[0], np.cumsum(np.bincount(cid, minlength=nx * ny))])
-    return ReachGrid(lo, cell, nx, ny, start.astype(np.int64), sid[order].astype(np.int64))
+    start, items = csr_from_pairs((cy * nx + cx)[keep], sid[keep], nx * ny)
+    return ReachGrid(lo, cell, nx, ny, start, items)
 
 
 # ----------------------------------------------------------------------------- spec + generator

@@ -247,20 +247,28 @@ def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells:
         raise ValueError(f"cell_size too small: {nx}x{ny} cells exceed max_cells={max_cells}")
     grid = ScratchGrid(lo.copy(), cell_size, nx, ny, np.zeros(nx * ny + 1, np.int64), np.zeros(0, np.int64))
     blo, bhi, _ = grid._cell_range(np.minimum(scratches.p0, scratches.p1), np.maximum(scratches.p0, scratches.p1))
-    span = bhi - blo + 1
-    n = span[:, 0] * span[:, 1]
-    si = np.repeat(np.arange(M), n)
-    k = np.arange(si.size) - np.repeat(np.cumsum(n) - n, n)
-    cx = blo[si, 0] + k % span[si, 0]
-    cy = blo[si, 1] + k // span[si, 0]
+    si, cx, cy = cell_pairs(blo, bhi)
     centre = lo + (np.stack([cx, cy], axis=1) + 0.5) * cell_size
     half_diag = 0.5 * np.sqrt(2.0) * cell_size * (1.0 + 1e-9)
     keep = point_segment_distance(centre, scratches.p0[si], scratches.p1[si]) <= half_diag
-    cell = (cy * nx + cx)[keep]
-    si = si[keep]
+    start, items = csr_from_pairs((cy * nx + cx)[keep], si[keep], nx * ny)
+    return ScratchGrid(lo.copy(), cell_size, nx, ny, start, items)
+
+
+def cell_pairs(blo: np.ndarray, bhi: np.ndarray):
+    """Every (item, cx, cy) with item i's cell index inside its inclusive box ``blo[i]..bhi[i]`` (vectorised)."""
+    span = bhi - blo + 1
+    n = span[:, 0] * span[:, 1]
+    item = np.repeat(np.arange(len(blo)), n)
+    k = np.arange(item.size) - np.repeat(np.cumsum(n) - n, n)
+    return item, blo[item, 0] + k % span[item, 0], blo[item, 1] + k // span[item, 0]
+
+
+def csr_from_pairs(cell: np.ndarray, item: np.ndarray, n_cells: int):
+    """CSR lists (``start`` [n_cells + 1], ``items``) from (cell, item) pairs, items in input order per cell."""
     order = np.argsort(cell, kind="stable")
-    start = np.concatenate([[0], np.cumsum(np.bincount(cell, minlength=nx * ny))])
-    return ScratchGrid(lo.copy(), cell_size, nx, ny, start.astype(np.int64), si[order].astype(np.int64))
+    start = np.concatenate([[0], np.cumsum(np.bincount(cell, minlength=n_cells))])
+    return start.astype(np.int64), item[order].astype(np.int64)
 
 
 def brute_force_query(scratches: ScratchSet, centers, radius):

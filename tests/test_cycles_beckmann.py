@@ -13,16 +13,7 @@ from scipy.special import erf
 from precompute import cycles_beckmann as bk
 from precompute import cycles_ggx as cg
 
-Z = np.array([0.0, 0.0, 1.0])
-U = np.array([1.0, 0.0, 0.0])
-
-
-def _sphere_grid(n_theta, n_phi):
-    th = (np.arange(n_theta) + 0.5) * (0.5 * np.pi / n_theta)
-    ph = (np.arange(n_phi) + 0.5) * (2 * np.pi / n_phi)
-    T, P = np.meshgrid(th, ph, indexing="ij")
-    w = np.sin(T) * (0.5 * np.pi / n_theta) * (2 * np.pi / n_phi)
-    return np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1), w
+from test_cycles_ggx import U, Z, _sphere_grid  # noqa: F401  (shared quadrature and frame)
 
 
 @pytest.mark.parametrize("ax,ay", [(0.3, 0.3), (0.2, 0.5), (0.6, 0.15)])
