@@ -239,19 +239,19 @@ def test_bad_input_raises():
         cg.albedo(0.0, 0.1, 0.1, n=3)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(theta_o=st.floats(-1.5707, 1.5707), phi_o=st.floats(-1.5707, 1.5707), tilt=st.floats(-1.5, 1.5),
-       ay=st.floats(1e-4, 1.0), ax=st.floats(1e-5, 1e-2))
-def test_fuzz_cone_collapse_finite_nonnegative(theta_o, phi_o, tilt, ay, ax):
+       ay=st.floats(1e-4, 1.0), ax=st.floats(1e-5, 1e-2), dist=st.sampled_from(["ggx", "beckmann"]))
+def test_fuzz_cone_collapse_finite_nonnegative(theta_o, phi_o, tilt, ay, ax, dist):
     if ax * ay <= cg.BSDF_ROUGHNESS_SQ_THRESH:
         return
     edges = np.linspace(-np.pi / 2, np.pi / 2, 33)
-    g = cg.cone_collapse_binned(phi_o, edges, tilt, ay, ax, theta_o)
+    g = cg.cone_collapse_binned(phi_o, edges, tilt, ay, ax, theta_o, dist=dist)
     assert np.all(np.isfinite(g)) and np.all(g >= 0)
     # energy on the cone never exceeds 1 (G <= 1, rejections only remove energy); 2e-3 slack for the
     # midpoint evaluation of the smooth factor inside each bin
     assert g.sum() * (np.pi / 32) <= 1.0 + 2e-3
-    ev, pdf = cg.tilted_lobe_eval(theta_o, phi_o, -theta_o, edges, tilt, ay, ax)
+    ev, pdf = cg.tilted_lobe_eval(theta_o, phi_o, -theta_o, edges, tilt, ay, ax, dist=dist)
     assert np.all(np.isfinite(ev)) and np.all(ev >= 0) and np.all(np.isfinite(pdf))
 
 
