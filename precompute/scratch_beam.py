@@ -28,8 +28,9 @@ the beam is straight, so its width as a function of the incident angle is exactl
 ``|D x d_i(phi_i)| = |A cos(phi_i) + B sin(phi_i)|`` with ``D`` the difference of the two points, for
 as long as the same vertices bound it.  The caller integrates that sinusoid over phi_i bins.
 
-Limits: at most ``max_bounces`` bounces (default 64) and tracing stops when every incident
-direction has less than ``min_energy`` (1e-7) of its light still inside; beams narrower than
+Limits: at most ``max_bounces`` bounces (default 64), and the tracing of an incident direction
+stops once less than ``min_energy`` (1e-7) of its light is still inside (so the result for one
+direction does not depend on which other directions are traced with it); beams narrower than
 1e-12 of the incident beam are dropped.  All of this is returned as ``lost`` energy.
 """
 from __future__ import annotations
@@ -181,12 +182,13 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         _record(out, beams, esc, bounce, inc, phi_i, lost)  # leaving beams
         b = hits["beam"]  # beams hitting the profile again
         inside = np.bincount(beams["sample"][b], hits["width"], minlength=E)
-        if bounce >= max_bounces or (inside / inc).max(initial=0.0) < min_energy:
-            lost += inside  # bounce or energy limit: what is still inside is lost
-            break
-        nb_ = _take(beams, b)
-        nb_.update(o=hits["o"], j=hits["seg"], shift=hits["shift"], t0=hits["t0"], t1=hits["t1"],
-                   P0=hits["P0"], P1=hits["P1"])
+        # bounce or energy limit, per incident direction: what is still inside is lost
+        stop = (inside < min_energy * inc) if bounce < max_bounces else np.ones(E, bool)
+        lost += np.where(stop, inside, 0.0)
+        go = ~stop[beams["sample"][b]]
+        nb_ = _take(beams, b[go])
+        nb_.update({k: v[go] for k, v in hits.items() if k in ("o", "t0", "t1", "P0", "P1")})
+        nb_.update(j=hits["seg"][go], shift=hits["shift"][go])
         beams = nb_
     cat = lambda k, dt: np.concatenate(out[k]).astype(dt) if out[k] else np.zeros(0, dt)  # noqa: E731
     return ExitRecords(
@@ -271,7 +273,7 @@ def _visibility(g: _Geometry, bm: dict):
     pos = v0.copy()
     act = np.arange(n)
     hits, escapes = [], []
-    k = np.arange(G + 1)[:, None]
+    k = np.arange(G + 1, dtype=np.int8 if G < 127 else np.int32)[:, None]  # small ints: cheap running argmax
     first_pass = True
     while act.size:
         if first_pass:

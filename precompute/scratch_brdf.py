@@ -40,31 +40,39 @@ Simulation
 ----------
 ``method="exact"`` (default): exact 2D beam tracing of the polyline (``precompute.scratch_beam``):
 each incident direction gives a finite sum of exit beams.  They are traced at the M*K+1 bin
-edges (K = ``supersample``, default ``default_supersample(M)``: 4 for M >= 256, plus a graded refinement in the two grazing bins) and each
-exit *path* (segment sequence) is followed across the sub-bin between two neighbouring nodes:
-its exit angle moves as ``phi_o = (-1)^bounces phi_i + c`` (exact) and its flux is the beam width
+edges (K = ``supersample``, default ``default_supersample(M)``: 3 at M = 256), 8x finer in the two
+bins at each horizon (plus a graded refinement at the horizon), and each exit *path* (segment
+sequence) is followed across the sub-bin between two neighbouring nodes: its exit angle moves as
+``phi_o = (-1)^bounces phi_i + c`` (exact) and its flux is the beam width
 ``upper(phi_i) - lower(phi_i)``, each bound the level ``c1 cos + c2 sin`` of one unfolded vertex.
-Paths with the same bounding vertices at both ends are integrated exactly; if a bound changes,
-the change is placed where the two vertices line up with the incident rays (exact for a single
-visibility event per sub-bin); paths seen at one end only (they appear or vanish inside the
-sub-bin) get a linear flux, rescaled so that every sub-bin keeps exactly its incident energy.
-Each piece is cut where ``phi_o`` crosses a bin edge and integrated in closed form (Fresnel
-factors linear in phi_i).  On finely segmented curved profiles most 2nd/3rd-bounce paths live
-much less than a bin (median ~1e-4 rad on a 256-segment quartic), so the error is governed by
-K: it falls about like ``K^-1.4`` (bench: ``python -m bench scratch_brdf``); the reciprocity
-residual ``|rho - rho^T| / |rho|`` is a direct measure of it (< 1 % at the default K on the
-test profiles, ~1e-4 on a V-groove).  Symmetric profiles trace only phi_i <= 0 (anti-diagonal
-symmetry ``rho(phi_o, phi_i) = rho(-phi_o, -phi_i)``).  ``method="mc"``: Monte Carlo reference
-(``precompute.scratch_mc``).
+Paths with the same bounding vertices at both ends are integrated exactly.  A single visibility
+event per sub-bin is placed exactly: a bound that changes switches where the two vertices line up
+with the incident rays, and a path seen at one end only whose width (from that end's bounds)
+vanishes inside the sub-bin is born/dies there.  Paths with more events get a linear flux,
+rescaled so that every sub-bin keeps exactly its incident energy.  Each piece is cut where
+``phi_o`` crosses a bin edge and integrated in closed form (Fresnel factors linear in phi_i).
+Reciprocity then gives the two grazing rows at each horizon from the finely traced grazing
+columns (light leaving at grazing phi_o falls in bins of tiny solid angle, the weakest part of a
+phi_i-sampled table), with each column's exact energy restored on its other rows.
 
-Recursion limit: at most ``max_bounces`` (64) reflections, and tracing stops once every
-incident direction has less than 1e-7 of its light inside; what is left is ``lost`` (max over
+On finely segmented curved profiles most 2nd/3rd-bounce paths live much less than a bin (median
+~1e-4 rad on a 256-segment quartic), so the error is governed by K: it falls about like ``K^-1.6``
+(bench: ``python -m bench scratch_brdf``); the reciprocity residual ``|rho - rho^T| / |rho|`` of
+the other rows is a direct measure of it (< 1 % at the default K on the test profiles, ~1e-4 on a
+V-groove).  Symmetric profiles trace and integrate only phi_i <= 0 (anti-diagonal symmetry
+``rho(phi_o, phi_i) = rho(-phi_o, -phi_i)``).  ``workers`` threads (default 2) trace and integrate
+contiguous parts of the phi_i range; the result does not depend on it.  ``method="mc"``: Monte
+Carlo reference (``precompute.scratch_mc``).
+
+Recursion limit: at most ``max_bounces`` (64) reflections, and the tracing of an incident
+direction stops once less than 1e-7 of its light is inside; what is left is ``lost`` (max over
 phi_i of the unaccounted fraction), stored with the table.
 """
 from __future__ import annotations
 
 import os
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -97,16 +105,18 @@ GAMMA_RANGE = (0.01, 100.0)
 THETA_FIT = np.pi / 3  # the direct-inversion slice of §4.2
 _EDGE_EPS = 1e-6  # the bin edges at +-pi/2 are traced at +-(pi/2 - eps)
 _GRADE_LEVELS = 8
-_NODES_PER_PI = 1024  # default: at least this many traced sub-bins over phi_i (and K >= 4)
+_EDGE_BINS = 2  # bins at each horizon traced _EDGE_FACTOR times finer; their rows come from reciprocity
+_EDGE_FACTOR = 8
+_NODES_PER_PI = 768  # default: at least this many traced sub-bins over phi_i (and K >= 2)
 
 
 def default_supersample(M: int) -> int:
-    """Default K for resolution M: ``min(64, max(4, ceil(1024 / M)))`` (4 at M >= 256, 16 at M = 64).
+    """Default K for resolution M: ``min(64, max(2, ceil(768 / M)))`` (12/6/3/2 at M = 64/128/256/512).
 
-    Chosen from ``python -m bench scratch_brdf`` (steep quartic, 256 segments): the smallest K whose
-    reciprocity residual is below 1 % at every M (K = 4 alone gives 1.4 % at M = 64).
+    Chosen from ``python -m bench scratch_brdf`` (steep quartic, 256 segments): rel. L1 against a
+    converged table 0.14/0.20/0.26/0.20 % at M = 64/128/256/512 (the halved K at each M gives 0.3-0.55 %).
     """
-    return int(min(64, max(4, -(-_NODES_PER_PI // int(M)))))
+    return int(min(64, max(2, -(-_NODES_PER_PI // int(M)))))
 
 
 def bin_edges(M: int) -> np.ndarray:
@@ -340,17 +350,6 @@ def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces):
                 bd=rec.bounds), rec.lost
 
 
-def _mirror_records(r):
-    """Records of phi_i -> -phi_i for a symmetric profile (x -> -x: levels change sign, lower <-> upper)."""
-    bd = r["bd"]
-    mb = np.stack([bd[:, 1] * np.array([-1.0, 1.0]), bd[:, 0] * np.array([-1.0, 1.0])], 1)
-    return dict(node=-r["node"], pid=r["pidm"], pidm=r["pid"], nb=r["nb"], phi_o=-r["phi_o"], W=r["W"], bd=mb)
-
-
-def _cat(a, b):
-    return {k: np.concatenate([a[k], b[k]]) for k in a}
-
-
 def _integrate(recs, edges, nodes, lost_nodes, M, split):
     """Cosine-weighted integrals of every path over every phi_i sub-bin ``[edges[b], edges[b+1]]``.
 
@@ -358,13 +357,14 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     ``upper(phi) - lower(phi)``, each bound being the level ``c1 cos + c2 sin`` of one unfolded
     vertex (exact while the same vertices bound the beam).  When a bound changes between the
     two ends, the change happens where the two vertices line up with the incident rays (the
-    single-event model); a path seen at one end only keeps that end's bounds and lives until its
-    width vanishes.  Each sub-bin is cut at those events, at the zeros of the widths, at the
-    horizon and where the exit angle ``phi_o = (-1)^bounces phi_i + c`` crosses a phi_o bin edge, and
-    the sinusoids (times a Fresnel factor linear in phi_i) are integrated exactly on each piece.
+    single-event model); a path seen at one end only keeps that end's bounds if its width vanishes
+    inside the sub-bin (it is born or dies there).  Each sub-bin is cut at those events, at the
+    zeros of the widths, at the horizon and where the exit angle ``phi_o = (-1)^bounces phi_i + c``
+    crosses a phi_o bin edge, and the sinusoids (times a Fresnel factor linear in phi_i) are
+    integrated exactly on each piece.  Other paths (several events) get a flux linear in phi_i.
 
-    Paths that are not exact on a sub-bin (bounds or path changed) are rescaled together so that
-    the sub-bin keeps exactly its incident energy.  Returns acc ``[comp, class, o, i]`` (unnormalised).
+    Those other paths are rescaled together so that the sub-bin keeps exactly its incident energy
+    (all paths, where that is not possible).  Returns acc ``[comp, class, o, i]`` (unnormalised).
     """
     MK = edges.size - 1
     e = np.searchsorted(nodes, recs["node"])  # node index of every record
@@ -378,18 +378,24 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     order = np.lexsort((p, b))
     b, rid, is_left = b[order], rid[order], is_left[order]
     p = p[order]
-    start = np.flatnonzero(np.concatenate([[True], (b[1:] != b[:-1]) | (p[1:] != p[:-1])]))
-    side = is_left[:, None]
+    first = np.concatenate([[True], (b[1:] != b[:-1]) | (p[1:] != p[:-1])])
+    start = np.flatnonzero(first)
+    grp = np.cumsum(first) - 1  # group (sub-bin, path) of every record
+    G = start.size
+    gl, gr = grp[is_left], grp[~is_left]
+    rl, rr = rid[is_left], rid[~is_left]
 
-    def red(v, sel):
-        return np.add.reduceat(np.where(sel, v, 0.0), start, axis=0)
+    def red(v, gi):  # per-group sums of the rows v [n, k]
+        out = np.empty((G, v.shape[1]))
+        for j in range(v.shape[1]):  # a few columns
+            out[:, j] = np.bincount(gi, v[:, j], minlength=G)
+        return out
 
-    bdr = bd[rid].reshape(-1, 4)
-    bL, bR = red(bdr, side), red(bdr, ~side)
-    ones = np.ones((rid.size, 1))
-    nL, nR = red(ones, side)[:, 0], red(ones, ~side)[:, 0]
-    FL = red(Fr[rid], side) / np.maximum(nL, 1)[:, None]
-    FR = red(Fr[rid], ~side) / np.maximum(nR, 1)[:, None]
+    bd4 = bd.reshape(-1, 4)
+    bL, bR = red(bd4[rl], gl), red(bd4[rr], gr)
+    nL, nR = np.bincount(gl, minlength=G), np.bincount(gr, minlength=G)
+    FL = red(Fr[rl], gl) / np.maximum(nL, 1)[:, None]
+    FR = red(Fr[rr], gr) / np.maximum(nR, 1)[:, None]
     hasL, hasR = nL > 0, nR > 0
     FL = np.where(hasL[:, None], FL, FR)
     FR = np.where(hasR[:, None], FR, FL)
@@ -405,81 +411,96 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     scale = 1e-9 * (np.abs(bL).sum(1) + 1e-300)
     same = hasL & hasR & (np.abs(bL - bR).sum(1) <= scale)
 
-    # breakpoints: ends (clipped to the horizon of the exit angle), bound switches, width zeros, phi_o edge
+    # breakpoints: ends (clipped to the horizon of the exit angle), the phi_o bin edge crossed (a
+    # sub-bin is at most one phi_o bin wide), and for paths that change: bound switches, width zeros
     v1, v2 = sgn * (-0.5 * np.pi - c), sgn * (0.5 * np.pi - c)
-    lo_v, hi_v = np.minimum(v1, v2), np.maximum(v1, v2)
-    A0, B0 = np.clip(pa, lo_v, hi_v), np.clip(pb, lo_v, hi_v)
-    mid = 0.5 * (pa + pb)
-    sw_lo = _root(loL - loR)
-    sw_hi = _root(hiL - hiR)
-    ch_lo = np.abs(loL - loR).sum(1) > scale
-    ch_hi = np.abs(hiL - hiR).sum(1) > scale
-    in_lo = (sw_lo > pa) & (sw_lo < pb)
-    in_hi = (sw_hi > pa) & (sw_hi < pb)
-    # the single-event model applies to paths seen at both ends whose changed bounds line up inside
-    switch = hasL & hasR & (~ch_lo | in_lo) & (~ch_hi | in_hi)
+    A0, B0 = np.clip(pa, np.minimum(v1, v2), np.maximum(v1, v2)), np.clip(pb, np.minimum(v1, v2), np.maximum(v1, v2))
+    jb = np.rint((c + sgn * 0.5 * (pa + pb) + 0.5 * np.pi) * (M / np.pi))
+    cross_phi = sgn * (-0.5 * np.pi + jb * (np.pi / M) - c)
+    # paths with the same bounds at both ends: one sinusoid, positive at both ends of an interval
+    # much shorter than pi, hence without zeros inside
+    gs_ = np.flatnonzero(same)
+    # the other paths (index q): the single-event model applies to paths seen at both ends whose
+    # changed bounds line up inside the sub-bin, and to paths seen at one end whose width vanishes inside
+    q = np.flatnonzero(~same)
+    loLq, hiLq, loRq, hiRq = loL[q], hiL[q], loR[q], hiR[q]
+    paq, pbq, scq = pa[q], pb[q], scale[q]
+    hLq, hRq = hasL[q], hasR[q]
+    sw_lo, sw_hi = _root(loLq - loRq), _root(hiLq - hiRq)
+    ch_lo = np.abs(loLq - loRq).sum(1) > scq
+    ch_hi = np.abs(hiLq - hiRq).sum(1) > scq
+    in_lo = (sw_lo > paq) & (sw_lo < pbq)
+    in_hi = (sw_hi > paq) & (sw_hi < pbq)
+    rt_own = np.where(hLq, _root(hiLq - loLq), _root(hiRq - loRq))
+    one_in = (hLq ^ hRq) & (rt_own > paq) & (rt_own < pbq)
+    sw_q = (hLq & hRq & (~ch_lo | in_lo) & (~ch_hi | in_hi)) | one_in
+    mid = 0.5 * (paq + pbq)
     sw_lo = np.where(in_lo, sw_lo, mid)
     sw_hi = np.where(in_hi, sw_hi, mid)
-    ya, yb_ = c + sgn * pa, c + sgn * pb
-    ym = 0.5 * (ya + yb_)
-    jb = np.rint((ym + 0.5 * np.pi) * (M / np.pi))
-    ycr = -0.5 * np.pi + jb * (np.pi / M)
-    cross_phi = sgn * (ycr - c)
-    roots = np.where(switch[:, None], np.stack([sw_lo, sw_hi, _root(hiL - loL), _root(hiR - loR), _root(hiL - loR),
-                                                _root(hiR - loL)], 1), A0[:, None])
-    pts = np.concatenate([np.stack([A0, B0, cross_phi], 1), roots], 1)
-    pts = np.sort(np.clip(pts, A0[:, None], B0[:, None]), 1)
-    a_, b_ = pts[:, :-1], pts[:, 1:]  # [G, 8] pieces
-    m = 0.5 * (a_ + b_)
-    useL_lo = (m < sw_lo[:, None])[..., None]
-    useL_hi = (m < sw_hi[:, None])[..., None]
-    lo = np.where(useL_lo, loL[:, None, :], loR[:, None, :])
-    hi = np.where(useL_hi, hiL[:, None, :], hiR[:, None, :])
-    AB = hi - lo
-    cm, sm = np.cos(m), np.sin(m)
-    # other paths: flux (beam width) linear in phi_i between the two nodes, 0 where the path is absent
+    A0q, B0q = A0[q], B0[q]
+    roots = np.where(sw_q[:, None], np.stack([sw_lo, sw_hi, _root(hiLq - loLq), _root(hiRq - loRq),
+                                              _root(hiLq - loRq), _root(hiRq - loLq)], 1), A0q[:, None])
+    switch = same.copy()
+    switch[q] = sw_q
+
+    def pieces(idx, pts):
+        pts = np.sort(np.clip(pts, A0[idx, None], B0[idx, None]), 1)
+        r, k = np.nonzero(pts[:, 1:] > pts[:, :-1])
+        return r, pts[r, k], pts[r, k + 1]
+
+    rs, xa_s, xb_s = pieces(gs_, np.stack([A0[gs_], B0[gs_], cross_phi[gs_]], 1))
+    rq, xa_q, xb_q = pieces(q, np.concatenate([np.stack([A0q, B0q, cross_phi[q]], 1), roots], 1))
+    m_q = 0.5 * (xa_q + xb_q)
+    useL_lo = (m_q < sw_lo[rq])[:, None]
+    useL_hi = (m_q < sw_hi[rq])[:, None]
+    g = np.concatenate([gs_[rs], q[rq]])
+    xa, xb = np.concatenate([xa_s, xa_q]), np.concatenate([xb_s, xb_q])
+    AB = np.concatenate([(hiL - loL)[gs_[rs]], np.where(useL_hi, hiLq[rq], hiRq[rq])
+                         - np.where(useL_lo, loLq[rq], loRq[rq])])
+    m = 0.5 * (xa + xb)
+    # paths outside the single-event model: flux linear in phi_i between the nodes, 0 where absent
     wL = np.where(hasL, (hiL - loL)[:, 0] * np.cos(na) + (hiL - loL)[:, 1] * np.sin(na), 0.0)
     wR = np.where(hasR, (hiR - loR)[:, 0] * np.cos(nbd) + (hiR - loR)[:, 1] * np.sin(nbd), 0.0)
     fs = (wR - wL) / np.maximum(nbd - na, 1e-300)
     f0 = wL - fs * na
-    sw2 = switch[:, None]
-    val = np.where(sw2, AB[..., 0] * cm + AB[..., 1] * sm, f0[:, None] + fs[:, None] * m)
-    ok = (b_ > a_) & (val > 0.0)
-    g, k = np.nonzero(ok)
-    A, B = AB[g, k, 0], AB[g, k, 1]
-    xa, xb = a_[g, k], b_[g, k]
-    o_bin = _bin_index(c[g] + sgn[g] * m[g, k], M)
+    swg = switch[g]
+    f0g, fsg = f0[g], fs[g]
+    val = np.where(swg, AB[:, 0] * np.cos(m) + AB[:, 1] * np.sin(m), f0g + fsg * m)
+    ok = val > 0.0
+    g, xa, xb, m, AB, swg, f0g, fsg = (v[ok] for v in (g, xa, xb, m, AB, swg, f0g, fsg))
+    o_bin = _bin_index(c[g] + sgn[g] * m, M)
     # Fresnel factor, linear in phi_i between the two traced nodes: F = al + be phi
     slope = (FR - FL) / np.maximum(nbd - na, 1e-300)[:, None]
     al = (FL - slope * na[:, None])[g]
     be = slope[g]
-
-    def prim(x):
-        sx, cx = np.sin(x), np.cos(x)
-        base = A * sx - B * cx
-        lin = A * (x * sx + cx) + B * (sx - x * cx)
-        return base, lin
-
-    b0, l0 = prim(xa)
-    b1, l1 = prim(xb)
-    Ib, Il = b1 - b0, l1 - l0  # integral of the width, and of phi * width
-    swg = switch[g]
-    f0g, fsg = f0[g], fs[g]
-    Jb = f0g * (xb - xa) + 0.5 * fsg * (xb * xb - xa * xa)
-    Jl = 0.5 * f0g * (xb * xb - xa * xa) + fsg * (xb**3 - xa**3) / 3.0
+    # integrals of the width and of phi * width over each piece
+    A, B = AB[:, 0], AB[:, 1]
+    sa, ca, sb_, cb = np.sin(xa), np.cos(xa), np.sin(xb), np.cos(xb)
+    Ib = A * (sb_ - sa) - B * (cb - ca)
+    Il = A * (xb * sb_ + cb - xa * sa - ca) + B * (sb_ - sa - xb * cb + xa * ca)
+    xa2, xb2 = xa * xa, xb * xb
+    Jb = f0g * (xb - xa) + 0.5 * fsg * (xb2 - xa2)
+    Jl = 0.5 * f0g * (xb2 - xa2) + fsg * (xb2 * xb - xa2 * xa) / 3.0
     Ib, Il = np.where(swg, Ib, Jb), np.where(swg, Il, Jl)
-    I = np.concatenate([Ib[:, None], al * Ib[:, None] + be * Il[:, None]], 1)
-    I = np.maximum(I, 0.0)
-    # energy check of each sub-bin: integral of cos(phi) (1 - lost), lost linear between nodes
+    I = np.empty((g.size, 1 + al.shape[1]))
+    I[:, 0] = Ib
+    I[:, 1:] = al * Ib[:, None] + be * Il[:, None]
+    np.maximum(I, 0.0, out=I)
+    # energy check of each sub-bin: integral of cos(phi) (1 - lost), lost linear between nodes.
+    # Pieces of paths outside the single-event model are rescaled together to meet it.
     target = (np.sin(edges[1:]) - np.sin(edges[:-1])) * (1.0 - 0.5 * (lost_nodes[:-1] + lost_nodes[1:]))
     gs = gb[g]
-    ex = same[g]
-    got_same = np.bincount(gs, np.where(ex, I[:, 0], 0.0), minlength=MK)
-    got_other = np.bincount(gs, np.where(ex, 0.0, I[:, 0]), minlength=MK)
+    got_exact = np.bincount(gs, np.where(swg, I[:, 0], 0.0), minlength=MK)
+    got_other = np.bincount(gs, np.where(swg, 0.0, I[:, 0]), minlength=MK)
+    # Where that is not possible (the modelled pieces alone exceed the target), all pieces are scaled.
     with np.errstate(divide="ignore", invalid="ignore"):
-        fac = np.where(got_other > 0, (target - got_same) / got_other, 1.0)
-    fac = np.where(np.isfinite(fac) & (fac > 0.5) & (fac < 2.0), fac, 1.0)
-    I = I * np.where(ex, 1.0, fac[gs])[:, None]
+        fac = np.where(got_other > 0, (target - got_exact) / got_other, 1.0)
+        fac_all = target / (got_exact + got_other)
+    ok_other = (got_other > 0) & np.isfinite(fac) & (fac > 0.5) & (fac < 2.0)
+    ok_all = ~ok_other & np.isfinite(fac_all) & (fac_all > 0.5) & (fac_all < 2.0)
+    fac = np.where(ok_other, fac, 1.0)
+    fac_all = np.where(ok_all, fac_all, 1.0)
+    I *= (np.where(swg, 1.0, fac[gs]) * fac_all[gs])[:, None]
     ibin = _bin_index(0.5 * (edges[gs] + edges[gs + 1]), M)
     cls = np.minimum(nb[r0][g], 3) - 1 if split else np.zeros(g.size, np.intp)
     ncls = 3 if split else 1
@@ -491,26 +512,60 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     return acc
 
 
-def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: bool, max_bounces: int):
+def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: bool, max_bounces: int,
+                  workers: int = 1):
     """Cosine-weighted bin averages ``acc[component, class, o, i]`` from exact beam tracing.
 
     Components: 0 = no Fresnel, then one per (Fresnel slice, channel).  Classes: bounce order
-    1, 2, >= 3 when ``split`` (else one class).  Returns (tables, lost).
+    1, 2, >= 3 when ``split`` (else one class).  The phi_i range is cut into ``workers`` contiguous
+    parts traced and integrated in threads (numpy releases the GIL; the result does not depend on
+    ``workers``: every incident direction is traced on its own).  Returns (tables, lost).
     """
     verts = profile.periodic_vertices()
-    sym = bool(profile.is_symmetric)
     edges = _sub_edges(M, K)
     nodes = np.clip(edges, -0.5 * np.pi + _EDGE_EPS, 0.5 * np.pi - _EDGE_EPS)
-    todo = nodes[edges <= 0.0] if sym else nodes
-    recs, lost_t = _trace_nodes(verts, todo, fresnel, cos_scales, max_bounces)
-    if sym:  # rho(phi_o, phi_i) = rho(-phi_o, -phi_i): mirror the records of phi_i < 0
-        mirror = _mirror_records(recs)
-        keep = mirror["node"] > 0.0
-        recs = _cat(recs, {k: v[keep] for k, v in mirror.items()})
-        lost_nodes = np.interp(np.abs(nodes), -todo[::-1], lost_t[::-1])
+    # rho(phi_o, phi_i) = rho(-phi_o, -phi_i) for a symmetric profile: with phi_i = 0 a bin edge
+    # (M even), trace and integrate phi_i <= 0 only; the other half is the mirror image
+    half = bool(profile.is_symmetric) and M % 2 == 0
+    n = int(np.count_nonzero(edges <= 0.0)) if half else edges.size
+    cuts = np.linspace(0, n - 1, max(1, min(int(workers), (n - 1) // 8)) + 1).round().astype(int)
+
+    def part(ab):
+        a, b = ab  # sub-bins a .. b-1, nodes a .. b
+        recs, lost = _trace_nodes(verts, nodes[a:b + 1], fresnel, cos_scales, max_bounces)
+        return _integrate(recs, edges[a:b + 1], nodes[a:b + 1], lost, M, split), lost
+
+    jobs = list(zip(cuts[:-1], cuts[1:]))
+    if len(jobs) > 1:
+        with ThreadPoolExecutor(len(jobs)) as ex:
+            results = list(ex.map(part, jobs))
     else:
-        lost_nodes = lost_t
-    acc = _integrate(recs, edges, nodes, lost_nodes, M, split)
+        results = [part(jobs[0])]
+    acc = results[0][0]
+    for r in results[1:]:
+        acc += r[0]
+    lost_dom = np.concatenate([results[0][1]] + [r[1][1:] for r in results[1:]])
+    if half:
+        acc[..., M // 2:] = acc[..., ::-1, : M // 2][..., ::-1]
+        lost_nodes = np.interp(np.abs(nodes), -nodes[:n][::-1], lost_dom[::-1])
+    else:
+        lost_nodes = lost_dom
+    # Reciprocity (cosine-weighted bin integrals: acc[o, i] = acc[i, o], per Fresnel slice and bounce
+    # order): light leaving at grazing phi_o lands in a bin of tiny solid angle, so the grazing rows
+    # are the least accurate part of a phi_i-sampled table; take them from the finely traced columns.
+    # Each column's energy (exact by construction) is then restored on its other rows.
+    eb = min(_EDGE_BINS, M // 2)
+    if eb:
+        g = np.r_[0:eb, M - eb:M]
+        inner = np.ones(M, bool)
+        inner[g] = False
+        before = acc.sum(-2)
+        acc[..., g, :] = np.swapaxes(acc[..., :, g], -1, -2)
+        rest = acc[..., inner, :].sum(-2)
+        want = before - acc[..., g, :].sum(-2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fac = np.where((rest > 0) & (want > 0), want / rest, 1.0)
+        acc[..., inner, :] *= fac[..., None, :]
     Ck = bin_cos_integrals(M)
     acc /= (Ck[:, None] * Ck[None, :])
     np.maximum(acc, 0.0, out=acc)  # rounding of cancelling integrals (~1e-14)
@@ -522,17 +577,30 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
 
 
 def _sub_edges(M: int, K: int) -> np.ndarray:
-    """Edges of the phi_i sub-bins where paths are traced: K per bin, plus a graded refinement
-    (halving ``_GRADE_LEVELS`` times) inside the two grazing bins, where the lit part of the
-    profile shrinks to the rims and path weights stop being linear in phi_i.  Symmetric about 0."""
+    """Edges of the phi_i sub-bins where paths are traced: K per bin, ``_EDGE_FACTOR`` times more in the
+    ``_EDGE_BINS`` bins at each horizon and a graded refinement (halving ``_GRADE_LEVELS`` times) next to
+    it, where the lit part of the profile shrinks to the rims and path weights stop being linear in
+    phi_i.  The grazing columns are then the most accurate part of the table; by reciprocity they
+    also give the grazing rows (``_exact_tables``).  Symmetric about 0."""
     d = np.pi / (M * K)
     half = -0.5 * np.pi + np.arange(0, (M * K) // 2 + 1) * d
-    step = d * 0.5 ** np.arange(1, _GRADE_LEVELS + 1)
+    de = d / _EDGE_FACTOR
+    edge = -0.5 * np.pi + np.arange(1, _EDGE_BINS * K * _EDGE_FACTOR) * de
+    step = de * 0.5 ** np.arange(1, _GRADE_LEVELS + 1)
     grade = -0.5 * np.pi + step[step > 8 * _EDGE_EPS]  # stay clear of the traced end nodes
-    neg = np.union1d(half, grade)
+    neg = np.union1d(np.union1d(half, edge), grade)
     neg = neg[neg <= 0.0]
     e = np.union1d(neg, -neg)
     return e
+
+
+def _workers(workers) -> int:
+    """Threads for the exact method: None = ``min(2, os.cpu_count())``; else an integer in [1, 64]."""
+    if workers is None:
+        return max(1, min(2, os.cpu_count() or 1))
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or not 1 <= workers <= 64:
+        raise ValueError(f"workers: expected None (automatic) or an integer in [1, 64], got {workers!r}")
+    return int(workers)
 
 
 def _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces):
@@ -553,12 +621,12 @@ def _check_args(profile, resolution, fresnel, method, supersample, rays_per_slic
         raise ValueError(f"max_bounces: expected an integer in [1, 10000], got {max_bounces!r}")
 
 
-def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, seed, split, max_bounces):
+def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, seed, split, max_bounces, workers=1):
     """rho_s at theta_o values (+ the lossless rho_m): returns (rho_m [M,M], rho_t [T,M,M,C] | None, bounces, lost)."""
     theta_o = np.atleast_1d(np.asarray(theta_o, np.float64))
     cos_scales = np.cos(theta_o) if fresnel is not None else np.zeros(0)
     if method == "exact":
-        acc, lost = _exact_tables(profile, M, supersample, fresnel, tuple(cos_scales), split, max_bounces)
+        acc, lost = _exact_tables(profile, M, supersample, fresnel, tuple(cos_scales), split, max_bounces, workers)
         rho_m = acc[0].sum(0)
         bounces = acc[0] if split else None
         rho_t = None
@@ -573,7 +641,7 @@ def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, s
 
 def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=None, *, method: str = "exact",
                    supersample: int | None = None, rays_per_slice: int = 10_000, seed: int = 0,
-                   max_bounces: int = MAX_BOUNCES) -> np.ndarray:
+                   max_bounces: int = MAX_BOUNCES, workers: int | None = None) -> np.ndarray:
     """Simulated ``rho_s(theta_o, phi_o, phi_i)`` for each ``theta_o`` (radians), shape ``[T, M, M, C]``.
 
     The full 3D scratch BRDF that eq. 2 approximates (§4.2, Fig. 6); ``fresnel=None`` gives rho_m.
@@ -584,7 +652,7 @@ def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=Non
     if not np.all(np.isfinite(th)) or np.any(np.abs(th) > 0.5 * np.pi):
         raise ValueError(f"theta_o: expected finite angles in [-pi/2, pi/2], got {th}")
     rho_m, rho_t, _, _ = _slices(profile, resolution, fresnel, np.abs(th), method, supersample, rays_per_slice,
-                                 seed, False, max_bounces)
+                                 seed, False, max_bounces, _workers(workers))
     if rho_t is None:
         return np.broadcast_to(rho_m[None, :, :, None], (th.size,) + rho_m.shape + (1,)).copy()
     return rho_t
@@ -592,7 +660,7 @@ def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=Non
 
 def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: str = "exact",
              supersample: int | None = None, split_bounces: bool = False, rays_per_slice: int = 10_000, seed: int = 0,
-             max_bounces: int = MAX_BOUNCES, cache: bool = False) -> ScratchBRDF:
+             max_bounces: int = MAX_BOUNCES, cache: bool = False, workers: int | None = None) -> ScratchBRDF:
     """Simulate the scratch BRDF of ``profile`` (Raymond et al. 2016, §4.1-4.2) on an M x M grid.
 
     ``fresnel``: None (lossless mirror: ``rho0 == rho_m``, gamma = 1) or a ``precompute.fresnel`` model;
@@ -603,10 +671,11 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
     _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
     supersample = default_supersample(resolution) if supersample is None else int(supersample)
     M = int(resolution)
+    nw = _workers(workers)
 
     def compute():
         rho_m, rho_t, bounces, lost = _slices(profile, M, fresnel, (0.0, THETA_FIT), method, supersample,
-                                              rays_per_slice, seed, split_bounces, max_bounces)
+                                              rays_per_slice, seed, split_bounces, max_bounces, nw)
         if rho_t is None:
             rho0 = rho_m.copy()
             gamma = np.ones_like(rho_m)
