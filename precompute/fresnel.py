@@ -155,11 +155,21 @@ class Conductor(Fresnel):
         return int(max(self.n.size, self.k.size))
 
     def __call__(self, cos_theta) -> np.ndarray:
+        # the same formula in real arithmetic (Pharr et al., PBRT 3rd ed. §8.2.1, FrConductor):
+        # with s = a + i b, a^2 + b^2 = |eta^2 - sin^2| and a = sqrt((|.| + Re(.)) / 2)
         c = _cos(cos_theta)
-        eta2 = (self.n + 1j * self.k) ** 2
-        s = np.sqrt(eta2 - (1.0 - c * c) + 0j)
-        rs = np.abs((c - s) / (c + s)) ** 2
-        rp = np.abs((eta2 * c - s) / (eta2 * c + s)) ** 2
+        c2 = c * c
+        s2 = 1.0 - c2
+        n2, k2 = self.n * self.n, self.k * self.k
+        t0 = n2 - k2 - s2
+        a2b2 = np.sqrt(t0 * t0 + 4.0 * n2 * k2)
+        a = np.sqrt(np.maximum(0.5 * (a2b2 + t0), 0.0))
+        t1 = a2b2 + c2
+        t2 = 2.0 * c * a
+        rs = (t1 - t2) / (t1 + t2)
+        t3 = c2 * a2b2 + s2 * s2
+        t4 = t2 * s2
+        rp = rs * (t3 - t4) / (t3 + t4)
         return np.clip(0.5 * (rs + rp), 0.0, 1.0)
 
     def cache_key(self) -> dict:

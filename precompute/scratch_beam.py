@@ -44,7 +44,7 @@ __all__ = ["ExitRecords", "trace_exact"]
 _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
 _BUCKET_SCALE = 1.0
-_SCAN_FACTOR = 2
+_SCAN_FACTOR = 1
 
 
 @dataclass

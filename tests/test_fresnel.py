@@ -56,3 +56,14 @@ def test_iron_preset_matches_paper_red_channel():
 def test_bad_parameters(call):
     with pytest.raises(ValueError):
         call()
+
+
+def test_conductor_equals_the_complex_born_wolf_form():
+    """The real-arithmetic formula (PBRT's FrConductor) against the complex-amplitude form, incl. grazing."""
+    c = np.concatenate([np.linspace(0.0, 1.0, 1001), [1e-12, 1e-6]])
+    for n, k in ((2.91, 3.09), (0.18, 3.42), (1.5, 0.0), (0.05, 0.0), (1.0, 1e-9), (30.0, 40.0)):
+        eta2 = complex(n, k) ** 2
+        s = np.sqrt(eta2 - (1.0 - c * c) + 0j)
+        rs = np.abs((c - s) / (c + s)) ** 2
+        rp = np.abs((eta2 * c - s) / (eta2 * c + s)) ** 2
+        np.testing.assert_allclose(fresnel.conductor(n, k)(c)[..., 0], 0.5 * (rs + rp), rtol=1e-9, atol=1e-12)
