@@ -107,6 +107,7 @@ _EDGE_EPS = 1e-6  # the bin edges at +-pi/2 are traced at +-(pi/2 - eps)
 _GRADE_LEVELS = 8
 _EDGE_BINS = 2  # bins at each horizon traced _EDGE_FACTOR times finer; their rows come from reciprocity
 _EDGE_FACTOR = 8
+_CHUNK_NODES = 64  # traced directions per part (threads take parts in turn)
 _NODES_PER_PI = 768  # default: at least this many traced sub-bins over phi_i (and K >= 2)
 
 
@@ -517,9 +518,9 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     """Cosine-weighted bin averages ``acc[component, class, o, i]`` from exact beam tracing.
 
     Components: 0 = no Fresnel, then one per (Fresnel slice, channel).  Classes: bounce order
-    1, 2, >= 3 when ``split`` (else one class).  The phi_i range is cut into ``workers`` contiguous
-    parts traced and integrated in threads (numpy releases the GIL; the result does not depend on
-    ``workers``: every incident direction is traced on its own).  Returns (tables, lost).
+    1, 2, >= 3 when ``split`` (else one class).  The phi_i range is cut into contiguous parts
+    traced and integrated by ``workers`` threads (numpy releases the GIL; the result does not depend
+    on the parts: every incident direction is traced on its own).  Returns (tables, lost).
     """
     verts = profile.periodic_vertices()
     edges = _sub_edges(M, K)
@@ -528,7 +529,10 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     # (M even), trace and integrate phi_i <= 0 only; the other half is the mirror image
     half = bool(profile.is_symmetric) and M % 2 == 0
     n = int(np.count_nonzero(edges <= 0.0)) if half else edges.size
-    cuts = np.linspace(0, n - 1, max(1, min(int(workers), (n - 1) // 8)) + 1).round().astype(int)
+    # parts of ~_CHUNK_NODES traced directions: their arrays stay cache-sized (the tracer is
+    # memory-bound: 2 threads on whole-range arrays gain ~1.1x, on parts ~1.6x)
+    nparts = max(1, min(n - 1, max(int(workers), round((n - 1) / _CHUNK_NODES))))
+    cuts = np.linspace(0, n - 1, nparts + 1).round().astype(int)
 
     def part(ab):
         a, b = ab  # sub-bins a .. b-1, nodes a .. b
@@ -536,11 +540,11 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
         return _integrate(recs, edges[a:b + 1], nodes[a:b + 1], lost, M, split), lost
 
     jobs = list(zip(cuts[:-1], cuts[1:]))
-    if len(jobs) > 1:
-        with ThreadPoolExecutor(len(jobs)) as ex:
+    if len(jobs) > 1 and workers > 1:
+        with ThreadPoolExecutor(min(int(workers), len(jobs))) as ex:
             results = list(ex.map(part, jobs))
     else:
-        results = [part(jobs[0])]
+        results = [part(j) for j in jobs]
     acc = results[0][0]
     for r in results[1:]:
         acc += r[0]
