@@ -6,6 +6,9 @@ and per channel R/G/B at K = 8), fit the S = 128 shader slices (rows of the M = 
 phi_o = -pi/2 + (s + 1/2) pi/S, ``lobe_fit.rows_at``) with ``lobe_fit.fit_table(..., phi_o=...)``
 and report the per-slice relative L1 error (median, p95, max), mean lobes used and fit time, for
 ``dists="auto"`` (Beckmann + GGX) and ``"ggx"`` (the previous GGX-only model).
+``--jitter off|on|both``: plain lobes, tilt-jittered "box" lobes (``fit_table(..., jitter=True)``) or
+both (column ``jitter``; ``box_frac`` = fraction of the used lobes with a jitter).
+``--profiles``: only these profile names.
 ``--quick``: M = 64, S = 32, K in {1, 4, 8}, two profiles, "auto" only.
 """
 from __future__ import annotations
@@ -50,28 +53,35 @@ def main(argv) -> int:
     ap.add_argument("--dists", nargs="+", default=None, help="auto / ggx / beckmann")
     ap.add_argument("--segments", type=int, default=None, help="polyline segments of the analytic profiles")
     ap.add_argument("--supersample", type=int, default=None, help="scratch_brdf.simulate supersample")
+    ap.add_argument("--jitter", choices=["off", "on", "both"], default="off",
+                    help="tilt-jittered (box) lobes: off, on or both")
+    ap.add_argument("--profiles", nargs="+", default=None, help="only these profiles (names as in the table)")
     a = ap.parse_args(argv)
     quick = a.quick
     M, S = (64, 32) if quick else (256, 128)
     Ks = a.ks or ([1, 4, 8] if quick else [1, 2, 3, 4, 6, 8, 12, 16])
     dist_modes = a.dists or (["auto"] if quick else ["auto", "ggx"])
+    jit_modes = {"off": [False], "on": [True], "both": [False, True]}[a.jitter]
     seg = a.segments or (1024 if quick else 4096)
     fr = fresnel.conductor_preset("iron")
     phi_o = lobe_fit.slice_centres(S)
     rows, curves = [], {}
 
-    def run(name, tname, table, K, mode):
+    def run(name, tname, table, K, mode, jit=False):
         t0 = time.perf_counter()
-        r = lobe_fit.fit_table(lobe_fit.rows_at(table, phi_o), K=K, phi_o=phi_o, dists=mode)
+        r = lobe_fit.fit_table(lobe_fit.rows_at(table, phi_o), K=K, phi_o=phi_o, dists=mode, jitter=jit)
         dt = time.perf_counter() - t0
         e = r["error"]
-        rows.append([name, tname, mode, K, float(np.median(e)), float(np.percentile(e, 95)), float(e.max()),
-                     float(r["n_lobes"].mean()), float(np.mean(r["dist"][r["weights"] > 0] == 1)) if np.any(r["weights"] > 0) else 0.0,
-                     dt])
+        used = r["weights"] > 0
+        frac = lambda m: float(np.mean(m[used])) if np.any(used) else 0.0  # noqa: E731
+        rows.append([name, tname, mode, "on" if jit else "off", K, float(np.median(e)), float(np.percentile(e, 95)),
+                     float(e.max()), float(r["n_lobes"].mean()), frac(r["dist"] == 1), frac(r["jitters"] > 0), dt])
         print(" ".join(str(x) if not isinstance(x, float) else f"{x:.4f}" for x in rows[-1]), flush=True)
         return e
 
     for name, prof in _profiles(quick, seg):
+        if a.profiles and name not in a.profiles:
+            continue
         brdf = scratch_brdf.simulate(prof, resolution=M, fresnel=fr, cache=True, supersample=a.supersample)
         rm = np.asarray(brdf.rho_m, float)
         rm = rm if rm.ndim == 2 else rm[..., 0]
@@ -79,26 +89,30 @@ def main(argv) -> int:
         tables = [("rho_m", rm), ("rho0_mean", r0.mean(-1) if r0.ndim == 3 else r0)]
         for tname, table in tables:
             for mode in dist_modes:
-                for K in Ks:
-                    e = run(name, tname, table, K, mode)
-                    curves.setdefault((name, tname, mode), []).append((K, np.median(e), np.percentile(e, 95)))
+                for jit in jit_modes:
+                    for K in Ks:
+                        e = run(name, tname, table, K, mode, jit)
+                        curves.setdefault((name, tname, mode, jit), []).append((K, np.median(e), np.percentile(e, 95)))
         if r0.ndim == 3 and not quick:
             for c, cname in enumerate("RGB"):
-                run(name, f"rho0_{cname}", r0[..., c], 8, "auto")
-    report("lobe_fit", ["profile", "table", "dists", "K", "err_median", "err_p95", "err_max", "lobes_used",
-                        "beckmann_frac", "fit_s"], rows,
+                for jit in jit_modes:
+                    run(name, f"rho0_{cname}", r0[..., c], 8, "auto", jit)
+    report("lobe_fit", ["profile", "table", "dists", "jitter", "K", "err_median", "err_p95", "err_max", "lobes_used",
+                        "beckmann_frac", "box_frac", "fit_s"], rows,
            notes=f"Analytic profiles with {seg} segments. M = {M} phi_i bins, S = {S} slices at phi_o = -pi/2 + (s+1/2) pi/S (rows linearly interpolated). "
                  "Relative L1 per slice between the lobes' cone-collapsed Cycles response (Smith G and horizon "
                  "losses included) and rho cos(phi_i) bin averages; error_target = 0.03 (slices stop adding lobes "
                  "once met). dists: auto = Beckmann fit + GGX refit of slices above target, better kept; ggx = GGX "
-                 "only. Fit time on 2 shared cores. Render cost per K: see bench/out/osl_vs_svm.md "
+                 "only. jitter on: each lobe may also have a tilt jitter j (a box of phi_i width 4 j, "
+                 "cycles_ggx.cone_collapse_binned_jittered); box_frac = fraction of used lobes with j > 0. "
+                 "Fit time on 2 shared cores. Render cost per K: see bench/out/osl_vs_svm.md "
                  "(8 OSL lobes ~ +45 % over 1 lobe).")
     plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(12, 4.5))
-    for (name, tname, mode), c in curves.items():
+    for (name, tname, mode, jit), c in curves.items():
         c = np.array(c)
-        ls = "-" if mode == "auto" else ":"
-        axs[0].plot(c[:, 0], c[:, 1], "o" + ls, ms=3, label=f"{name} {tname} {mode}")
+        ls = "--" if jit else ("-" if mode == "auto" else ":")
+        axs[0].plot(c[:, 0], c[:, 1], "o" + ls, ms=3, label=f"{name} {tname} {mode}" + (" jitter" if jit else ""))
         axs[1].plot(c[:, 0], c[:, 2], "o" + ls, ms=3)
     for ax, title in zip(axs, ["median rel. L1", "p95 rel. L1"]):
         ax.axhline(0.03, color="k", lw=0.8, ls="--")

@@ -10,7 +10,9 @@ interpolated there, not averaged: averaging smears the moving mirror peaks), at 
   conductor costs no extra closures.
 
 and attaches to every lobe the γ of eq. 2 at the lobe centre (φi = 2·tilt − φo).  A lossless
-profile (ρ0 = ρm) returns no ρ0 lobes.  Angles in radians.
+profile (ρ0 = ρm) returns no ρ0 lobes.  With ``jitter=True`` every lobe also has a tilt jitter j
+(the shader draws the tilt uniformly in [t − j, t + j] per sample: a box of φi width 4 j,
+``cycles_ggx.cone_collapse_binned_jittered``).  Angles in radians.
 """
 from __future__ import annotations
 
@@ -18,8 +20,8 @@ import numpy as np
 
 import sys
 
-from . import cache, cycles_ggx, lobe_fit
-from .cycles_ggx import cone_collapse_binned
+from . import cache, cycles_beckmann, cycles_ggx, lobe_fit
+from .cycles_ggx import cone_collapse_binned, cone_collapse_binned_jittered
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
 __all__ = ["lobe_tables", "nnls_batched"]
@@ -50,12 +52,15 @@ def _gamma_at_lobes(gamma: np.ndarray, phi_o: np.ndarray, tilts: np.ndarray) -> 
 
 
 def lobe_tables(brdf, K: int = 8, slices: int = 64, error_target: float = 0.03, use_cache: bool = True,
-                dists: str = "auto") -> dict:
+                dists: str = "auto", jitter: bool = False) -> dict:
     """Lobes for the shader: dict with ``m`` and ``0`` (None when lossless) entries, each a dict of
-    ``weights [S, K, 3]``, ``tilts [S, K]``, ``widths [S, K]``, ``dist [S, K]`` (0 = GGX, 1 = Beckmann),
-    ``gamma [S, K]``, ``error [S]`` (rel. L1 of the fitted slice after the energy rescale, worst
-    channel), plus ``alpha_x`` and ``phi_o [S]`` (the shader's slice centres).
+    ``weights [S, K, 3]``, ``tilts [S, K]``, ``widths [S, K]``, ``jitters [S, K]`` (tilt jitter,
+    radians; all 0 unless ``jitter``), ``dist [S, K]`` (0 = GGX, 1 = Beckmann), ``gamma [S, K]``,
+    ``error [S]`` (rel. L1 of the fitted slice after the energy rescale, worst channel), plus
+    ``alpha_x`` and ``phi_o [S]`` (the shader's slice centres).
     ``dists``: "auto" (per lobe, Beckmann or GGX, whichever fits better), "ggx" or "beckmann".
+    ``jitter``: also fit a tilt jitter per lobe (``lobe_fit.fit_table(..., jitter=True)``); the
+    energy rescale and the per-channel weights use the jittered lobes.
     """
     if not isinstance(K, (int, np.integer)) or not 1 <= K <= 16:
         raise ValueError(f"lobes (K) must be an integer in [1, 16], got {K!r}")
@@ -63,19 +68,22 @@ def lobe_tables(brdf, K: int = 8, slices: int = 64, error_target: float = 0.03, 
         raise ValueError(f"slices must be an integer in [4, 512], got {slices!r}")
     if dists not in ("auto", "ggx", "beckmann"):
         raise ValueError(f"dists must be 'auto', 'ggx' or 'beckmann', got {dists!r}")
+    if not isinstance(jitter, (bool, np.bool_)):
+        raise ValueError(f"jitter must be True or False, got {jitter!r}")
     arrays = brdf.arrays()
     inputs = {"tables": {k: v for k, v in arrays.items() if k in ("rho0", "rho_m", "gamma")}, "K": int(K),
-              "slices": int(slices), "error_target": float(error_target), "dists": dists}
+              "slices": int(slices), "error_target": float(error_target), "dists": dists, "jitter": bool(jitter)}
 
     def compute():
-        return _lobe_tables(brdf, int(K), int(slices), float(error_target), dists)
+        return _lobe_tables(brdf, int(K), int(slices), float(error_target), dists, bool(jitter))
 
-    version = cache.code_version(sys.modules[__name__], lobe_fit, cycles_ggx)
+    version = cache.code_version(sys.modules[__name__], lobe_fit, cycles_ggx, cycles_beckmann)
     flat = cache.cached_arrays("scratch_lobes", version, inputs, compute, enabled=use_cache)
     out = {"alpha_x": float(flat["alpha_x"][0]), "phi_o": flat["phi_o"], "m": None, "0": None}
     for key in ("m", "0"):
         if f"{key}_weights" in flat:
-            out[key] = {f: flat[f"{key}_{f}"] for f in ("weights", "tilts", "widths", "dist", "gamma", "error")}
+            out[key] = {f: flat[f"{key}_{f}"] for f in ("weights", "tilts", "widths", "jitters", "dist", "gamma",
+                                                        "error")}
             out[key]["dist"] = out[key]["dist"].astype(np.int8)
     return out
 
@@ -87,10 +95,13 @@ def _as_channels(a: np.ndarray) -> np.ndarray:
 
 def _atoms(fit: dict, phi_o: np.ndarray, edges: np.ndarray, alpha_x: float) -> np.ndarray:
     """Bin-averaged cone collapse of every fitted lobe: [S, K, M] (what Cycles renders per unit weight)."""
+    if np.any(fit["jitters"] > 0):
+        return cone_collapse_binned_jittered(phi_o[:, None], edges, fit["tilts"], fit["widths"], fit["jitters"],
+                                             alpha_x, dist=fit["dist"])
     return cone_collapse_binned(phi_o[:, None], edges, fit["tilts"], fit["widths"], alpha_x, dist=fit["dist"])
 
 
-def _lobe_tables(brdf, K, slices, error_target, dists) -> dict:
+def _lobe_tables(brdf, K, slices, error_target, dists, jitter=False) -> dict:
     rho_m = _as_channels(brdf.rho_m)
     rho_0 = _as_channels(brdf.rho0)
     gamma = _as_channels(brdf.gamma)
@@ -104,17 +115,19 @@ def _lobe_tables(brdf, K, slices, error_target, dists) -> dict:
     target_m = rows_m * np.cos(phi_bin_centres(M))[None, :]
     out = {"phi_o": phi_o}
 
-    fm = lobe_fit.fit_table(rows_m, K=K, error_target=error_target, phi_o=phi_o, dists=dists)
+    fm = lobe_fit.fit_table(rows_m, K=K, error_target=error_target, phi_o=phi_o, dists=dists, jitter=jitter)
     ax = float(fm["alpha_x"])
     out["alpha_x"] = np.array([ax])
     A_m = _atoms(fm, phi_o, edges, ax)
     w_m = _conserve_energy(fm["weights"][..., None], A_m, rows_m[..., None], edges)[..., 0]
     err_m = relative_l1(np.einsum("sk,skm->sm", w_m, A_m), target_m)
     out.update({"m_weights": np.repeat(w_m[..., None], 3, -1), "m_tilts": fm["tilts"], "m_widths": fm["widths"],
+                "m_jitters": fm["jitters"],
                 "m_dist": fm["dist"].astype(np.float64), "m_gamma": _gamma_at_lobes(gam, phi_o, fm["tilts"]),
                 "m_error": err_m})
     if not np.allclose(rho_0, rho_m, rtol=1e-6, atol=1e-9):
-        f0 = lobe_fit.fit_table(rows_0.mean(-1), K=K, error_target=error_target, phi_o=phi_o, dists=dists)
+        f0 = lobe_fit.fit_table(rows_0.mean(-1), K=K, error_target=error_target, phi_o=phi_o, dists=dists,
+                                jitter=jitter)
         A_0 = _atoms(f0, phi_o, edges, ax)                                                  # [S, K, M]
         used = (f0["weights"] > 0)[:, :, None]
         A = np.swapaxes(A_0 * used, 1, 2)                                                   # [S, M, K]
@@ -126,7 +139,7 @@ def _lobe_tables(brdf, K, slices, error_target, dists) -> dict:
         err = np.max([relative_l1(fits[..., c], target[..., c]) for c in range(C)], axis=0)
         if C == 1:
             wc = np.repeat(wc, 3, -1)
-        out.update({"0_weights": wc, "0_tilts": f0["tilts"], "0_widths": f0["widths"],
+        out.update({"0_weights": wc, "0_tilts": f0["tilts"], "0_widths": f0["widths"], "0_jitters": f0["jitters"],
                     "0_dist": f0["dist"].astype(np.float64), "0_gamma": _gamma_at_lobes(gam, phi_o, f0["tilts"]),
                     "0_error": err})
     return out

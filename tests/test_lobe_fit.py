@@ -93,10 +93,105 @@ def test_quartic_meets_issue_target_with_12_lobes(quartic_table):
     assert np.percentile(r["error"], 95) <= 0.035
 
 
-@pytest.mark.xfail(strict=True, reason="issue #4 target (<= 3 % p95 rel. L1 at K <= 8) not met on smooth profiles")
-def test_quartic_meets_issue_target(quartic_table):
-    r = lf.fit_table(quartic_table, K=8)
+@pytest.mark.xfail(strict=True, reason="issue #4 target (<= 3 % p95 rel. L1 at K <= 8) not met on smooth profiles; "
+                   "jittered box lobes meet it on the circular profile but not on quartics (p95 4.9 % here)")
+@pytest.mark.parametrize("jitter", [False, True], ids=["plain", "jitter"])
+def test_quartic_meets_issue_target(quartic_table, jitter):
+    r = lf.fit_table(quartic_table, K=8, jitter=jitter)
     assert np.percentile(r["error"], 95) <= 0.03
+
+
+# ----------------------------------------------------------------------------- jittered (box) lobes
+@pytest.fixture(scope="module")
+def circular_table():
+    return scratch_brdf.simulate(profiles.circular(0.5, segments=1024), resolution=M).rho_m
+
+
+@pytest.mark.parametrize("d,dists", [([1, 1, 1], "auto"), ([0, 1, 0], "mixed")], ids=["beckmann", "mixed"])
+def test_known_jittered_lobes_are_recovered(d, dists):
+    # Two boxes (narrow lobes jittered by j: phi_i width 4 j) and a bell, as Cycles renders them on
+    # average: refitted to < 1 % with 3 lobes; the boxes' centres and extents are found to ~a bin.
+    # (A bell overlapping a box is reproduced too, but with more lobes: the greedy step takes the
+    # joint plateau for one box first.)
+    edges = lf.phi_bin_edges(M)
+    phi_o = -0.2
+    w = np.array([0.5, 0.3, 0.4])
+    c = np.array([-0.8, 0.6, 0.0])
+    j = np.array([0.15, 0.1, 0.0])
+    t = 0.5 * (c + phi_o)
+    a = np.array([2e-3, 5e-3, 0.05])
+    f = lf.lobe_model(phi_o, w, t, a, edges, alpha_x=1e-4, dist=np.array(d), jitters=j)
+    res = lf.fit_lobes(f, phi_o, K=8, error_target=0.01, jitter=True, dists=dists)
+    assert res.error <= 0.01
+    assert res.n_lobes == 3
+    assert res.jitters.shape == (8,) and np.all(res.jitters >= 0)
+    fit = lf.lobe_model(phi_o, res.weights, res.tilts, res.widths, edges, alpha_x=res.alpha_x, dist=res.dist,
+                        jitters=res.jitters)
+    assert lf.relative_l1(fit, f) == pytest.approx(res.error, rel=1e-6)
+    used = res.weights > 0
+    centres = (2 * res.tilts - phi_o)[used]
+    for ck, jk in zip(c[:2], j[:2]):
+        k = np.argmin(np.abs(centres - ck))
+        assert abs(centres[k] - ck) < np.pi / M
+        assert abs(4 * res.jitters[used][k] - 4 * jk) < 2 * np.pi / M
+
+
+def test_jitter_meets_issue_target_on_the_circular_profile(circular_table):
+    # A circular groove spreads each bounce order evenly over an interval: its slices are sums of
+    # boxes.  Measured at K = 8 (M = 64): plain lobes p95 6.5 %, jittered boxes p95 2.9 %.
+    plain = lf.fit_table(circular_table, K=8)
+    boxes = lf.fit_table(circular_table, K=8, jitter=True)
+    assert np.percentile(boxes["error"], 95) <= 0.03
+    assert np.percentile(plain["error"], 95) > 0.04
+    assert np.mean(boxes["jitters"][boxes["weights"] > 0] > 0) > 0.5      # it is the boxes that do it
+
+
+def test_jittered_fit_bounds_consistency_and_regression(quartic_table):
+    K = 8
+    r = lf.fit_table(quartic_table, K=K, jitter=True)
+    phi = lf.phi_bin_centres(M)
+    for key in ("weights", "tilts", "widths", "jitters"):
+        assert r[key].shape == (M, K) and np.all(np.isfinite(r[key]))
+    used = r["weights"] > 0
+    assert np.all(r["jitters"] >= 0) and np.all(r["jitters"][~used] == 0)
+    # each box stays above the horizon: |centre| + 2 j <= pi/2
+    centre = 2 * r["tilts"] - phi[:, None]
+    assert np.all((np.abs(centre) + 2 * r["jitters"])[used] <= 0.5 * np.pi + 1e-9)
+    # the reported errors are those of the exact jittered model (not the one-panel fitting model)
+    edges = lf.phi_bin_edges(M)
+    f = quartic_table * (np.diff(np.sin(edges)) / np.diff(edges))[None, :]
+    fit = lf.lobe_model(phi, r["weights"], r["tilts"], r["widths"], edges, alpha_x=r["alpha_x"], dist=r["dist"],
+                        jitters=r["jitters"])
+    np.testing.assert_allclose(lf.relative_l1(fit, f), r["error"], rtol=1e-6, atol=1e-12)
+    # measured median 2.9 %, p95 4.9 % (plain lobes: 3.05 %, 6.6 %)
+    assert np.median(r["error"]) < 0.034
+    assert np.percentile(r["error"], 95) < 0.056
+    # without jitter the jitters are all zero (the default model is unchanged)
+    assert np.all(lf.fit_table(quartic_table[::8], K=2, phi_o=phi[::8])["jitters"] == 0)
+
+
+def test_lobe_tables_with_jitter_conserve_energy():
+    from precompute import fresnel, scratch_lobes
+    from precompute.cycles_ggx import cone_collapse_binned_jittered
+
+    Mt, S, K = 32, 8, 4
+    brdf = scratch_brdf.simulate(profiles.circular(0.5, segments=512), resolution=Mt,
+                                 fresnel=fresnel.conductor_preset("iron"))
+    out = scratch_lobes.lobe_tables(brdf, K=K, slices=S, use_cache=False, jitter=True)
+    edges = lf.phi_bin_edges(Mt)
+    C_i = np.diff(np.sin(edges))
+    for key, table in (("m", np.asarray(brdf.rho_m)), ("0", np.asarray(brdf.rho0))):
+        e = out[key]
+        assert e["jitters"].shape == (S, K) and np.all(e["jitters"] >= 0) and np.any(e["jitters"] > 0)
+        atoms = cone_collapse_binned_jittered(out["phi_o"][:, None], edges, e["tilts"], e["widths"], e["jitters"],
+                                              out["alpha_x"], dist=e["dist"])
+        albedo = (atoms * np.diff(edges)).sum(-1)                                     # [S, K]
+        rows = lf.rows_at(table if table.ndim == 3 else table[..., None], out["phi_o"])  # [S, M, C]
+        want = np.einsum("smc,m->sc", rows, C_i)
+        got = np.einsum("skc,sk->sc", e["weights"][..., :want.shape[1]], albedo)
+        np.testing.assert_allclose(got, want, rtol=1e-9)
+    with pytest.raises(ValueError, match="jitter"):
+        scratch_lobes.lobe_tables(brdf, K=K, slices=S, use_cache=False, jitter="yes")
 
 
 def test_rows_at_interpolates_linearly_between_bin_centres():
@@ -167,4 +262,26 @@ def test_fuzz_random_smooth_slices(phi_o, K, seed, n_bumps):
     assert np.isfinite(r.error) and r.error >= 0
     assert set(np.unique(r.dist)) <= {0, 1}
     if n_bumps == 0:
+        assert r.n_lobes == 0 and r.error == 0
+
+
+@settings(max_examples=15, deadline=None)
+@given(phi_o=st.floats(-1.5707, 1.5707), K=st.integers(1, 6), seed=st.integers(0, 2**16),
+       n_boxes=st.integers(0, 3), margin=st.sampled_from([0.0, 0.1]))
+def test_fuzz_random_box_slices_with_jitter(phi_o, K, seed, n_boxes, margin):
+    rng = np.random.default_rng(seed)
+    x = lf.phi_bin_centres(32)
+    f = np.zeros(32)
+    for _ in range(n_boxes):
+        lo, hi = np.sort(rng.uniform(-1.6, 1.6, 2))
+        f += rng.uniform(0, 3) * ((x > lo) & (x < hi + 0.1))
+    r = lf.fit_lobes(f, phi_o, K=K, max_iter=4, margin=margin, jitter=True)
+    assert r.weights.shape == r.jitters.shape == (K,) and r.n_lobes <= K
+    for a in (r.weights, r.tilts, r.widths, r.jitters):
+        assert np.all(np.isfinite(a))
+    assert np.all(r.weights >= 0) and np.all(r.jitters >= 0) and np.all((r.widths > 0) & (r.widths <= 1))
+    used = r.weights > 0
+    assert np.all(np.abs(2 * r.tilts - phi_o)[used] + 2 * r.jitters[used] <= 0.5 * np.pi - margin + 1e-9)
+    assert np.isfinite(r.error) and r.error >= 0
+    if n_boxes == 0:
         assert r.n_lobes == 0 and r.error == 0
