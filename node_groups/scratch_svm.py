@@ -11,7 +11,8 @@ Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
   with N beyond one Voronoi node per layer;
 - lobe parameters come from packed Non-Color float images (one row per φo slice, one column
   per lobe) read with Closest interpolation; the φo slice is picked stochastically between the
-  two nearest rows, as in OSL.
+  two nearest rows, as in OSL; jittered (box) lobes share one tilt offset per sample (the OSL
+  path jitters only the picked lobe: the same expectation).
 """
 from __future__ import annotations
 
@@ -82,7 +83,8 @@ class _G:
 
 
 def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image, bpy.types.Image]:
-    """Packed Non-Color float images of a lobe table: W (RGB weights) and P (tilt, roughness, anisotropy, γ).
+    """Packed Non-Color float images of a lobe table: W (RGB weights, tilt jitter) and P (tilt, roughness,
+    anisotropy, γ); alpha is "channel packed" (a data channel, never multiplied into the colour).
 
     Rows = φo slices (row 0 at the bottom = slice 0), columns = lobes.  Glossy parameters follow
     Cycles' mapping (α = roughness², α_u = α(1 - an), α_v = α / (1 - an)) so that α_u = alpha_x along
@@ -95,7 +97,8 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
     aniso = np.clip(1.0 - np.sqrt(alpha_x / ay), 0.0, 0.99)
     p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
     out = []
-    for suffix, arr in (("W", np.concatenate([w, np.ones((S, K, 1), np.float32)], -1)), ("P", p)):
+    jit = np.asarray(entry.get("jitters", np.zeros((S, K))), np.float32)[..., None]
+    for suffix, arr in (("W", np.concatenate([w, jit], -1)), ("P", p)):
         img_name = f"{name}.{suffix}"
         img = bpy.data.images.get(img_name)
         if img is not None and tuple(img.size) != (K, S):
@@ -104,6 +107,7 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
         if img is None:
             img = bpy.data.images.new(img_name, width=K, height=S, alpha=True, float_buffer=True, is_data=True)
         img.colorspace_settings.is_data = True
+        img.alpha_mode = "CHANNEL_PACKED"
         img.pixels.foreach_set(arr.reshape(-1))
         img.file_format = "OPEN_EXR"
         img.pack()
@@ -132,6 +136,10 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         return wn.outputs["Value"]
 
     h_slice, h_layer = noise((12.9898, 78.233, 37.719)), noise((93.989, 67.345, 24.113))
+    # tilt jitter (stochastic box lobes): one offset in [-1, 1) per sample, scaled per lobe
+    jittered = any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
+                   for e in (lobe_data["m"], lobe_data["0"]))
+    h_jit = g.math("SUBTRACT", g.math("MULTIPLY", noise((57.193, 29.917, 64.433)), 2.0), 1.0) if jittered else None
 
     if layers is None:
         theta_sel = 0.0
@@ -194,6 +202,8 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
             g._set(tp.inputs["Vector"], coord)
             tilt, rough, aniso = g.separate(tp.outputs["Color"])
             gamma = tp.outputs["Alpha"]
+            if jittered:
+                tilt = g.math("ADD", tilt, g.math("MULTIPLY", tw.outputs["Alpha"], h_jit))
             n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
                                               g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
             colour = tw.outputs["Color"]

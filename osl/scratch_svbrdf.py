@@ -47,11 +47,12 @@ class LobeTable:
     weight: np.ndarray  # [L, 3] RGB closure weights
     gamma: np.ndarray   # [L] γ at the lobe centre (eq. 2)
     dist: np.ndarray = None  # [L] 0 = GGX, 1 = Beckmann (None: all GGX)
+    jitter: np.ndarray = None  # [L] tilt jitter j (radians): tilt drawn in [t - j, t + j] per sample (None: 0)
 
     @classmethod
     def from_fit(cls, fit: dict) -> "LobeTable":
         """From ``precompute.scratch_lobes.lobe_tables`` entries (``weights`` [S, K] or [S, K, 3], ``tilts``,
-        ``widths``, optional ``dist`` and ``gamma`` [S, K]); zero-weight slots are dropped."""
+        ``widths``, optional ``dist``, ``gamma`` and ``jitters`` [S, K]); zero-weight slots are dropped."""
         w = np.asarray(fit["weights"], float)
         rgb = np.repeat(w[..., None], 3, -1) if w.ndim == 2 else w
         keep = rgb.max(-1) > 0
@@ -59,7 +60,12 @@ class LobeTable:
         n = int(start[-1])
         take = lambda key, default: np.asarray(fit[key])[keep] if key in fit else default  # noqa: E731
         return cls(start, np.asarray(fit["tilts"], float)[keep], np.asarray(fit["widths"], float)[keep], rgb[keep],
-                   take("gamma", np.ones(n)).astype(float), take("dist", np.zeros(n, int)).astype(int))
+                   take("gamma", np.ones(n)).astype(float), take("dist", np.zeros(n, int)).astype(int),
+                   take("jitters", np.zeros(n)).astype(float))
+
+    @property
+    def jittered(self) -> bool:
+        return self.jitter is not None and bool(np.any(np.asarray(self.jitter) > 0))
 
     @property
     def n_slices(self) -> int:
@@ -85,14 +91,17 @@ class ShaderSpec:
     name: str = "scratch_svbrdf"
 
 
-def _lobe_arrays(prefix: str, t: LobeTable) -> str:
+def _lobe_arrays(prefix: str, t: LobeTable, jittered: bool = False) -> str:
     dist = np.zeros(len(t.tilt), int) if t.dist is None else np.asarray(t.dist, int)
+    if jittered and t.jitter is None:
+        t = LobeTable(t.start, t.tilt, t.width, t.weight, t.gamma, t.dist, np.zeros(len(t.tilt)))
     return (const_array(f"{prefix}_START", t.start, "int")
             + const_array(f"{prefix}_DIST", dist, "int")
             + const_array(f"{prefix}_TILT", t.tilt)
             + const_array(f"{prefix}_AY", t.width)
             + const_array(f"{prefix}_W", t.weight.ravel())
-            + const_array(f"{prefix}_GAMMA", t.gamma))
+            + const_array(f"{prefix}_GAMMA", t.gamma)
+            + (const_array(f"{prefix}_JIT", t.jitter) if jittered else ""))
 
 
 def generate(spec: ShaderSpec) -> str:
@@ -116,9 +125,11 @@ def generate(spec: ShaderSpec) -> str:
     src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}\n#define KMAX2 {max(per_slice, 1)}")
     if spec.lobe_mode not in ("pick", "all"):
         raise ValueError(f"lobe_mode must be 'pick' or 'all', got {spec.lobe_mode!r}")
-    layer_lobes = _LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)]
+    # tilt jitter (stochastic box lobes, precompute.lobe_fit): only generated when a lobe has one
+    jittered = spec.lobes_m.jittered or (not lossless and spec.lobes_0.jittered)
+    layer_lobes = _jitter_subst(_LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)], jittered)
     funcs = _LOBE_FUNC_ALL if spec.lobe_mode == "all" else _LOBE_FUNC_PICK
-    src.append(_LOBE_COMMON + funcs)
+    src.append(_jitter_subst(_LOBE_COMMON + funcs, jittered))
     if layered:
         src.append(_DISK_OVERLAP)
     params = []
@@ -133,14 +144,14 @@ def generate(spec: ShaderSpec) -> str:
     if layered:
         params.insert(0, "    point UV = 0,  // connect a UV Map node: scratch layers live in UV space (eq. 7)")
     src.append(f"shader {spec.name}(\n" + "\n".join(params) + "\n{")
-    body = [_lobe_arrays("LM", spec.lobes_m)]
+    body = [_lobe_arrays("LM", spec.lobes_m, jittered)]
     if not lossless:
-        body.append(_lobe_arrays("L0", spec.lobes_0))
+        body.append(_lobe_arrays("L0", spec.lobes_0, jittered))
     if layered:
         body.append(const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
                     + const_array("COV", spec.coverage))
         body.append(f"    float COV_DMAX = {spec.coverage_dmax:.9g};")
-    body.append(_FRAME)
+    body.append(_jitter_subst(_FRAME, jittered))
     if layered:
         if spec.alpha_mode not in ("footprint", "mean"):
             raise ValueError(f"alpha_mode must be 'footprint' or 'mean', got {spec.alpha_mode!r}")
@@ -154,6 +165,29 @@ def generate(spec: ShaderSpec) -> str:
     src.append("\n".join(body))
     src.append("}")
     return "\n".join(src) + "\n"
+
+
+def _jitter_subst(code: str, jittered: bool) -> str:
+    """Fill the @JIT...@ placeholders: the jitter arrays/arguments and the per-sample tilt offset
+    ``j (2 h - 1)`` (uniform in [-j, j]; its expectation is the lobe the fit modelled), or nothing."""
+    rep = {
+        "@JIT_DECL_M@": ", float jm[]" if jittered else "",
+        "@JIT_DECL_0@": ", float j0[]" if jittered else "",
+        "@JIT_DECL_H@": ", float hj" if jittered else "",
+        "@JIT_DECL@": ", float jit[], float hj" if jittered else "",
+        "@JIT_M@": " + jm[q] * hj" if jittered else "",
+        "@JIT_0@": " + j0[q] * hj" if jittered else "",
+        "@JIT_J@": " + jit[j] * hj" if jittered else "",
+        "@JIT_ARG_M@": ", LM_JIT" if jittered else "",
+        "@JIT_ARG_0@": ", L0_JIT" if jittered else "",
+        "@JIT_ARG_H@": ", h_jit" if jittered else "",
+        "@JIT_HASH@": ("    // per-sample tilt offset in [-1, 1) of the jittered lobes\n"
+                       "    float h_jit = 2.0 * hashnoise(P, dot(wo, vector(57.193, 29.917, 64.433)) + 43.0) - 1.0;\n")
+        if jittered else "",
+    }
+    for k, v in rep.items():
+        code = code.replace(k, v)
+    return code
 
 
 # --- OSL snippets -------------------------------------------------------------------------------
@@ -187,13 +221,13 @@ closure color lobe(int beckmann, float tilt, float ay, vector u, vector v, norma
 '''
 
 _LOBE_FUNC_ALL = r'''
-closure color lobe_set(int start[], int dist[], float tilt[], float ay[], float w[], float gam[], int s,
+closure color lobe_set(int start[], int dist[], float tilt[], float ay[], float w[], float gam[]@JIT_DECL@, int s,
                        float x, vector u, vector v, normal n, int use_r, int r_is_m)
 {
     closure color c = 0;
     for (int j = start[s]; j < start[s + 1]; j++)
         c += lobe_factor(gam[j], x, use_r, r_is_m) * color(w[3 * j], w[3 * j + 1], w[3 * j + 2])
-             * lobe(dist[j], tilt[j], ay[j], u, v, n);
+             * lobe(dist[j], tilt[j]@JIT_J@, ay[j], u, v, n);
     return c;
 }
 
@@ -203,9 +237,9 @@ _LOBE_FUNC_PICK = r'''
 // Pick one lobe of slice s among the rho_m lobes (weight R_gamma, or 1 when lossless) and the rho_0
 // lobes (weight 1 - R_gamma), with probability proportional to the channel-mean weight, and return
 // it weighted by 1 / probability. Weights are computed once (x^gamma = exp(gamma ln x)).
-closure color pick_lobe(int sm[], int dm[], float tm[], float am[], float wm[], float gm[],
-                        int s0[], int d0[], float t0[], float a0[], float w0[], float g0[],
-                        int use0, int s, float x, float h, vector u, vector v, normal n)
+closure color pick_lobe(int sm[], int dm[], float tm[], float am[], float wm[], float gm[]@JIT_DECL_M@,
+                        int s0[], int d0[], float t0[], float a0[], float w0[], float g0[]@JIT_DECL_0@,
+                        int use0, int s, float x, float h@JIT_DECL_H@, vector u, vector v, normal n)
 {
     float lw[KMAX2];
     float lx = (x > 0.0) ? log(x) : 0.0;
@@ -243,11 +277,11 @@ closure color pick_lobe(int sm[], int dm[], float tm[], float am[], float wm[], 
     if (pick < nm) {
         int q = sm[s] + pick;
         color w = color(wm[3 * q], wm[3 * q + 1], wm[3 * q + 2]);
-        c = (total / (w[0] + w[1] + w[2])) * w * lobe(dm[q], tm[q], am[q], u, v, n);
+        c = (total / (w[0] + w[1] + w[2])) * w * lobe(dm[q], tm[q]@JIT_M@, am[q], u, v, n);
     } else {
         int q = s0[s] + pick - nm;
         color w = color(w0[3 * q], w0[3 * q + 1], w0[3 * q + 2]);
-        c = (total / (w[0] + w[1] + w[2])) * w * lobe(d0[q], t0[q], a0[q], u, v, n);
+        c = (total / (w[0] + w[1] + w[2])) * w * lobe(d0[q], t0[q]@JIT_0@, a0[q], u, v, n);
     }
     return c;
 }
@@ -282,7 +316,7 @@ _FRAME = r'''
     float h_slice = hashnoise(P, dot(wo, vector(12.9898, 78.233, 37.719)));
     float h_layer = hashnoise(P, dot(wo, vector(93.989, 67.345, 24.113)) + 17.0);
     float h_lobe = hashnoise(P, dot(wo, vector(39.346, 11.135, 83.155)) + 31.0);
-'''
+@JIT_HASH@'''
 
 _ALPHA = r'''
     // UV and its footprint. Cycles' ray differentials are isotropic (no foreshortening), so the
@@ -411,19 +445,24 @@ _LAYER_HEAD = r'''
 
 _RHO = {  # (lobe_mode, lossless) -> the slice's closure rho (eq. 2)
     ("pick", True): r'''
-        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA,
-                                      LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, 0, s, x, h_lobe, u, v, n);
+        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA@JIT_ARG_M@,
+                                      LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA@JIT_ARG_M@, 0, s, x,
+                                      h_lobe@JIT_ARG_H@, u, v, n);
 ''',
     ("pick", False): r'''
-        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA,
-                                      L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, 1, s, x, h_lobe, u, v, n);
+        closure color rho = pick_lobe(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA@JIT_ARG_M@,
+                                      L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA@JIT_ARG_0@, 1, s, x,
+                                      h_lobe@JIT_ARG_H@, u, v, n);
 ''',
     ("all", True): r'''
-        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 0, 1);
+        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA@JIT_ARG_M@@JIT_ARG_H@, s, x,
+                                     u, v, n, 0, 1);
 ''',
     ("all", False): r'''
-        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA, s, x, u, v, n, 1, 1)
-                          + lobe_set(L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA, s, x, u, v, n, 1, 0);
+        closure color rho = lobe_set(LM_START, LM_DIST, LM_TILT, LM_AY, LM_W, LM_GAMMA@JIT_ARG_M@@JIT_ARG_H@, s, x,
+                                     u, v, n, 1, 1)
+                          + lobe_set(L0_START, L0_DIST, L0_TILT, L0_AY, L0_W, L0_GAMMA@JIT_ARG_0@@JIT_ARG_H@, s, x,
+                                     u, v, n, 1, 0);
 ''',
 }
 
@@ -516,7 +555,7 @@ def generate_reference(spec: ReferenceSpec) -> str:
         body.append(const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
                     + const_array("COV", spec.coverage))
         body.append(f"    float COV_DMAX = {spec.coverage_dmax:.9g};")
-    body.append(_FRAME)
+    body.append(_jitter_subst(_FRAME, False))
     body.append("    float h_phi = hashnoise(P, dot(wo, vector(71.17, 5.31, 47.77)) + 47.0);")
     if layered:
         body.append(_ALPHA.replace("@CULL@", f"{ALPHA_CULL:.9g}"))

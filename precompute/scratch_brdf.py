@@ -346,7 +346,7 @@ def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces):
     rec = trace_exact(verts, phi, fresnel, cos_scales, max_bounces=max_bounces, min_energy=MIN_ENERGY)
     W = rec.weight[:, None]
     if rec.fresnel is not None:
-        W = np.concatenate([W, rec.fresnel.reshape(rec.fresnel.shape[0], -1)], 1)
+        W = np.concatenate([W, rec.fresnel.reshape(rec.fresnel.shape[0], int(np.prod(rec.fresnel.shape[1:])))], 1)
     return dict(node=phi[rec.sample], pid=rec.pid, pidm=rec.pid_mirror, nb=rec.bounces, phi_o=rec.phi_o, W=W,
                 bd=rec.bounds), rec.lost
 
@@ -368,6 +368,8 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     (all paths, where that is not possible).  Returns acc ``[comp, class, o, i]`` (unnormalised).
     """
     MK = edges.size - 1
+    if recs["node"].size == 0:  # nothing leaves (e.g. a very deep groove: all light lost inside)
+        return np.zeros((recs["W"].shape[1], 3 if split else 1, M, M))
     e = np.searchsorted(nodes, recs["node"])  # node index of every record
     pid, nb, phi_o, W, bd = recs["pid"], recs["nb"], recs["phi_o"], recs["W"], recs["bd"]
     Fr = W[:, 1:] / np.maximum(W[:, :1], 1e-300)

@@ -41,6 +41,8 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
                   ``precompute.scratch_layers.LayerParams`` fields (n_layers, theta_deg, length,
                   width, density, seed; lengths in UV units) or a LayerParams
       lobes       K, at most this many tilted GGX lobes per φo slice (1..16, default 8)
+      box_lobes   also fit a tilt jitter per lobe (stochastic box lobes: the shader draws the tilt
+                  in [t - j, t + j] per sample); closer fits of round profiles, slower fit (default False)
       mode        "lobes" (the product path, light sampling kept) or "reference" (validation)
       resolution  scratch-BRDF table size M (64/128/256/512), slices φo slices in the shader
       tint        RGB multiplier of the scratch reflectance; diffuse: None, RGB or "wood"

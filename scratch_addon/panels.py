@@ -56,6 +56,7 @@ class SCRATCH_PT_material(bpy.types.Panel):
         row = box.row()
         row.prop(s, "lobes")
         row.prop(s, "resolution")
+        box.prop(s, "box_lobes")
         box.prop(s, "mode", expand=True)
         col.operator("scratch.update_material", icon="FILE_REFRESH")
         err = mat.get("scratch_addon_fit_error")

@@ -43,6 +43,7 @@ class ScratchParams:
     tint: tuple
     diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
     backend: str = "osl"    # "osl" (CPU/OptiX, footprint-filtered α, hash-picked lobes) or "svm" (GPU/EEVEE)
+    box_lobes: bool = False  # also fit a tilt jitter per lobe (stochastic box lobes; fit ~1-3x slower)
 
 
 def _as_layers(layers):
@@ -94,7 +95,7 @@ def _as_fresnel(fresnel):
 
 
 def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
-             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl") -> ScratchParams:
+             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl", box_lobes=False) -> ScratchParams:
     """Check every parameter; raise ValueError naming the parameter and its allowed range."""
     profile = profiles.quartic(0.2) if profile is None else _as_profile(profile)
     if not isinstance(profile, profiles.Profile):
@@ -115,11 +116,13 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     if backend == "svm" and mode != "lobes":
         raise ValueError("mode must be 'lobes' with backend 'svm' (the reference mode needs OSL)")
+    if not isinstance(box_lobes, bool):
+        raise ValueError(f"box_lobes must be True or False, got {box_lobes!r}")
     rgba = materials.check_color("tint", tint)
     if diffuse is not None and diffuse != "wood":
         diffuse = materials.check_color("diffuse", diffuse)[:3]
     return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices,
-                         rgba[:3], diffuse, backend)
+                         rgba[:3], diffuse, backend, box_lobes)
 
 
 def _check_uvs_for(obj_meshes) -> None:
@@ -195,7 +198,7 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_optio
             rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,
             use_base=params.base["type"] != "none", **layer_kw))
     if lobe_data is None:
-        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices)
+        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices, jitter=params.box_lobes)
 
     def table(entry):
         return None if entry is None else osl_gen.LobeTable.from_fit(entry)
@@ -236,7 +239,8 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     if params.mode == "lobes":
         # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
         lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
-                                              dists="ggx" if params.backend == "svm" else "auto")
+                                              dists="ggx" if params.backend == "svm" else "auto",
+                                              jitter=params.box_lobes)
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()
@@ -300,6 +304,6 @@ def _finish(material, tree, out, surface, params: ScratchParams, lobe_data, step
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
         "resolution": params.resolution, "slices": params.slices, "tint": list(params.tint),
-        "diffuse": params.diffuse, "backend": params.backend}, default=_jsonable)
+        "diffuse": params.diffuse, "backend": params.backend, "box_lobes": params.box_lobes}, default=_jsonable)
     step(1.0)
     return material

@@ -42,3 +42,20 @@ def test_svm_tables_are_packed_non_color_images(addon, scene):
     assert len(images) == 4  # W and P for rho_m and rho_0
     for img in images:
         assert img.packed_file is not None and img.colorspace_settings.is_data and img.is_float
+
+
+def test_svm_box_lobes_white_furnace(addon, scene, render_dir):
+    """Jittered (box) lobes on the node-group path: one tilt offset per sample shared by the summed lobes."""
+    import importlib
+
+    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.profiles")
+    noises = {}
+    for box in (False, True):
+        mat = _material(addon, f"SVM box {box}", profile=profiles.circular(0.5, segments=64), fresnel=None,
+                        layers=None, base="mirror", backend="svm", box_lobes=box)
+        noises[box] = sum(n.bl_idname == "ShaderNodeTexWhiteNoise" for n in mat.node_tree.nodes)
+    assert noises[True] == noises[False] + 1  # the jitter's random number, only when used
+    _scene(addon, scene, mat, world="uniform")
+    scene.cycles.shading_system = False
+    img, _ = addon.render.render_array(scene, str(render_dir))
+    assert abs(img.mean() - 1.0) < 0.02, img.mean()
