@@ -93,15 +93,14 @@ class ShaderSpec:
 
 def _lobe_arrays(prefix: str, t: LobeTable, jittered: bool = False) -> str:
     dist = np.zeros(len(t.tilt), int) if t.dist is None else np.asarray(t.dist, int)
-    if jittered and t.jitter is None:
-        t = LobeTable(t.start, t.tilt, t.width, t.weight, t.gamma, t.dist, np.zeros(len(t.tilt)))
+    jit = np.zeros(len(t.tilt)) if t.jitter is None else np.asarray(t.jitter, float)
     return (const_array(f"{prefix}_START", t.start, "int")
             + const_array(f"{prefix}_DIST", dist, "int")
             + const_array(f"{prefix}_TILT", t.tilt)
             + const_array(f"{prefix}_AY", t.width)
             + const_array(f"{prefix}_W", t.weight.ravel())
             + const_array(f"{prefix}_GAMMA", t.gamma)
-            + (const_array(f"{prefix}_JIT", t.jitter) if jittered else ""))
+            + (const_array(f"{prefix}_JIT", jit) if jittered else ""))
 
 
 def generate(spec: ShaderSpec) -> str:

@@ -51,8 +51,8 @@ _SCAN_FACTOR = 1
 class ExitRecords:
     """Beams leaving the scratch.  One row per (incident sample, path).
 
-    ``sample``: index into the incident directions; ``pid``/``pid_mirror``: path hash and the
-    hash of the mirrored path; ``bounces``: number of reflections; ``phi_o``: exit angle;
+    ``sample``: index into the incident directions; ``pid``: path hash (segment sequence);
+    ``bounces``: number of reflections; ``phi_o``: exit angle;
     ``weight``: fraction of the incident flux (no Fresnel); ``fresnel``: the same with Fresnel,
     shape ``(n, S, C)`` for the S requested theta_o slices; ``flux_ab``: ``(A, B)`` with
     ``A cos(phi_i) + B sin(phi_i)`` = the beam width per period of incident beam near this
@@ -65,7 +65,6 @@ class ExitRecords:
 
     sample: np.ndarray
     pid: np.ndarray
-    pid_mirror: np.ndarray
     bounces: np.ndarray
     phi_o: np.ndarray
     weight: np.ndarray
@@ -139,7 +138,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     C = fresnel.channels if (fresnel is not None and S) else 0
     cos_scales = np.asarray(cos_scales, np.float64)
 
-    out = {k: [] for k in ("sample", "pid", "pidm", "nb", "phi", "w", "f", "ab", "bd")}
+    out = {k: [] for k in ("sample", "pid", "nb", "phi", "w", "f", "ab", "bd")}
     lost = np.zeros(E)
     inc = np.cos(phi_i)  # incident beam width per period (period = 1)
 
@@ -170,7 +169,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     v_hi = w_idx + P + 1
     beams = dict(
         sample=e_idx, o=oo, j=w_idx, shift=np.ones(n0, np.intp), t0=t_lo, t1=t_hi, dx=dx[e_idx], dh=dh[e_idx],
-        pid=np.zeros(n0, np.int64), pidm=np.zeros(n0, np.int64),
+        pid=np.zeros(n0, np.int64),
         f=np.ones((n0, S, C)) if C else None,
         R=R, tr=U[1], P0=_apply(U, g.X[oo, v_lo], g.H[oo, v_lo]), P1=_apply(U, g.X[oo, v_hi], g.H[oo, v_hi]),
     )
@@ -192,7 +191,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         beams = nb_
     cat = lambda k, dt: np.concatenate(out[k]).astype(dt) if out[k] else np.zeros(0, dt)  # noqa: E731
     return ExitRecords(
-        sample=cat("sample", np.int64), pid=cat("pid", np.int64), pid_mirror=cat("pidm", np.int64),
+        sample=cat("sample", np.int64), pid=cat("pid", np.int64), 
         bounces=cat("nb", np.int64), phi_o=cat("phi", np.float64), weight=cat("w", np.float64),
         fresnel=(np.concatenate(out["f"]) if out["f"] else np.zeros((0, S, C))) if C else None,
         flux_ab=np.concatenate(out["ab"]) if out["ab"] else np.zeros((0, 2)),
@@ -231,7 +230,6 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     j_orig = np.where(o == 0, j, P - 1 - j).astype(np.int64)
     code = (P + 1) * k.astype(np.int64)
     pid = bm["pid"] * _HASH_MUL + (j_orig + 1 + code)
-    pidm = bm["pidm"] * _HASH_MUL + (P - j_orig + code)
     flip = dx < 0
     o = np.where(flip, 1 - o, o)
     j = np.where(flip, P - 1 - j, j)
@@ -243,7 +241,7 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     l0, l1 = _levels(g, o, j, t0, dx, dh), _levels(g, o, j, t1, dx, dh)
     top0 = (l0 >= l1)[:, None]
     return dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
-                pid=pid, pidm=pidm, f=f, R=R, tr=tr,
+                pid=pid, f=f, R=R, tr=tr,
                 Phi=np.where(top0, bm["P0"], bm["P1"]), Plo=np.where(top0, bm["P1"], bm["P0"]))
 
 
@@ -369,7 +367,6 @@ def _record(out: dict, bm: dict, esc: dict, bounce: int, inc: np.ndarray, phi_i:
     out["bd"].append(np.stack([np.where(pos, c_lo, c_hi), np.where(pos, c_hi, c_lo)], 1))
     out["sample"].append(smp)
     out["pid"].append(bm["pid"][b])
-    out["pidm"].append(bm["pidm"][b])
     out["nb"].append(np.full(b.size, bounce))
     out["phi"].append(np.arctan2(dxo, bm["dh"][b]))
     out["w"].append(w)

@@ -341,14 +341,13 @@ def _root(c):
 
 
 def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces):
-    """Trace incident directions ``phi``; per-record arrays (node angle, pid, mirrored pid, bounces,
+    """Trace incident directions ``phi``; per-record arrays (node angle, pid, bounces,
     phi_o, weights [n, 1 + S C], bounds [n, 2, 2]) and the per-node lost fraction."""
     rec = trace_exact(verts, phi, fresnel, cos_scales, max_bounces=max_bounces, min_energy=MIN_ENERGY)
     W = rec.weight[:, None]
     if rec.fresnel is not None:
         W = np.concatenate([W, rec.fresnel.reshape(rec.fresnel.shape[0], int(np.prod(rec.fresnel.shape[1:])))], 1)
-    return dict(node=phi[rec.sample], pid=rec.pid, pidm=rec.pid_mirror, nb=rec.bounces, phi_o=rec.phi_o, W=W,
-                bd=rec.bounds), rec.lost
+    return dict(node=phi[rec.sample], pid=rec.pid, nb=rec.bounces, phi_o=rec.phi_o, W=W, bd=rec.bounds), rec.lost
 
 
 def _integrate(recs, edges, nodes, lost_nodes, M, split):
@@ -417,7 +416,8 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     # breakpoints: ends (clipped to the horizon of the exit angle), the phi_o bin edge crossed (a
     # sub-bin is at most one phi_o bin wide), and for paths that change: bound switches, width zeros
     v1, v2 = sgn * (-0.5 * np.pi - c), sgn * (0.5 * np.pi - c)
-    A0, B0 = np.clip(pa, np.minimum(v1, v2), np.maximum(v1, v2)), np.clip(pb, np.minimum(v1, v2), np.maximum(v1, v2))
+    lo_v, hi_v = np.minimum(v1, v2), np.maximum(v1, v2)
+    A0, B0 = np.clip(pa, lo_v, hi_v), np.clip(pb, lo_v, hi_v)
     jb = np.rint((c + sgn * 0.5 * (pa + pb) + 0.5 * np.pi) * (M / np.pi))
     cross_phi = sgn * (-0.5 * np.pi + jb * (np.pi / M) - c)
     # paths with the same bounds at both ends: one sinusoid, positive at both ends of an interval
