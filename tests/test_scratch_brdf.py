@@ -197,7 +197,7 @@ def test_gamma_fallbacks():
 
 
 @pytest.mark.parametrize("kw", [dict(resolution=1), dict(resolution=2.5), dict(method="gpu"), dict(supersample=0),
-                                dict(fresnel=lambda c: c), dict(max_bounces=0)])
+                                dict(fresnel=lambda c: c), dict(max_bounces=0), dict(workers=0), dict(workers=1.5)])
 def test_bad_arguments(kw):
     with pytest.raises(ValueError):
         simulate(PROFILES["v_groove"], **kw)
