@@ -10,6 +10,7 @@ and report the per-slice relative L1 error (median, p95, max), mean lobes used a
 both (column ``jitter``; ``box_frac`` = fraction of the used lobes with a jitter).
 ``--profiles``: only these profile names.
 ``--quick``: M = 64, S = 32, K in {1, 4, 8}, two profiles, "auto" only.
+Rows with dists = "table": tabulated-tilt lobes (``precompute.lobe_table``), for comparison (``--no-table``: skip).
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ def _profiles(quick: bool, seg: int):
 
 
 def main(argv) -> int:
-    from precompute import fresnel, lobe_fit, scratch_brdf
+    from precompute import fresnel, lobe_fit, lobe_table, scratch_brdf
 
     import argparse
 
@@ -56,8 +57,13 @@ def main(argv) -> int:
     ap.add_argument("--jitter", choices=["off", "on", "both"], default="off",
                     help="tilt-jittered (box) lobes: off, on or both")
     ap.add_argument("--profiles", nargs="+", default=None, help="only these profiles (names as in the table)")
+    ap.add_argument("--no-table", dest="table", action="store_false",
+                    help="skip the tabulated-tilt lobes (precompute.lobe_table) rows")
+    ap.add_argument("--only-table", action="store_true",
+                    help="only the tabulated-tilt lobes rows (report bench/out/lobe_table.md)")
     a = ap.parse_args(argv)
     quick = a.quick
+    tables_err = {}
     M, S = (64, 32) if quick else (256, 128)
     Ks = a.ks or ([1, 4, 8] if quick else [1, 2, 3, 4, 6, 8, 12, 16])
     dist_modes = a.dists or (["auto"] if quick else ["auto", "ggx"])
@@ -88,16 +94,24 @@ def main(argv) -> int:
         r0 = np.asarray(brdf.rho0, float)
         tables = [("rho_m", rm), ("rho0_mean", r0.mean(-1) if r0.ndim == 3 else r0)]
         for tname, table in tables:
-            for mode in dist_modes:
+            if a.table:
+                # tabulated-tilt lobes (precompute.lobe_table): no fit, one sampled closure
+                t0 = time.perf_counter()
+                _w, e, _A = lobe_table.fit_bins(lobe_fit.rows_at(table, phi_o), phi_o)
+                rows.append([name, tname, "table", "-", 1, float(np.median(e)), float(np.percentile(e, 95)),
+                             float(e.max()), 1.0, 0.0, 0.0, time.perf_counter() - t0])
+                print(" ".join(str(x) if not isinstance(x, float) else f"{x:.4f}" for x in rows[-1]), flush=True)
+                tables_err[(name, tname)] = (float(np.median(e)), float(np.percentile(e, 95)))
+            for mode in ([] if a.only_table else dist_modes):
                 for jit in jit_modes:
                     for K in Ks:
                         e = run(name, tname, table, K, mode, jit)
                         curves.setdefault((name, tname, mode, jit), []).append((K, np.median(e), np.percentile(e, 95)))
-        if r0.ndim == 3 and not quick:
+        if r0.ndim == 3 and not quick and not a.only_table:
             for c, cname in enumerate("RGB"):
                 for jit in jit_modes:
                     run(name, f"rho0_{cname}", r0[..., c], 8, "auto", jit)
-    report("lobe_fit", ["profile", "table", "dists", "jitter", "K", "err_median", "err_p95", "err_max", "lobes_used",
+    report("lobe_table" if a.only_table else "lobe_fit", ["profile", "table", "dists", "jitter", "K", "err_median", "err_p95", "err_max", "lobes_used",
                         "beckmann_frac", "box_frac", "fit_s"], rows,
            notes=f"Analytic profiles with {seg} segments. M = {M} phi_i bins, S = {S} slices at phi_o = -pi/2 + (s+1/2) pi/S (rows linearly interpolated). "
                  "Relative L1 per slice between the lobes' cone-collapsed Cycles response (Smith G and horizon "
@@ -106,7 +120,9 @@ def main(argv) -> int:
                  "only. jitter on: each lobe may also have a tilt jitter j (a box of phi_i width 4 j, "
                  "cycles_ggx.cone_collapse_binned_jittered); box_frac = fraction of used lobes with j > 0. "
                  "Fit time on 2 shared cores. Render cost per K: see bench/out/osl_vs_svm.md "
-                 "(8 OSL lobes ~ +45 % over 1 lobe).")
+                 "(8 OSL lobes ~ +45 % over 1 lobe). dists = table: tabulated-tilt lobes "
+                 "(precompute.lobe_table: the slice sampled bin by bin by one narrow lobe; K = 1 closure, no fit; "
+                 "fit_s = weights + atoms).")
     plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(12, 4.5))
     for (name, tname, mode, jit), c in curves.items():
@@ -114,12 +130,17 @@ def main(argv) -> int:
         ls = "--" if jit else ("-" if mode == "auto" else ":")
         axs[0].plot(c[:, 0], c[:, 1], "o" + ls, ms=3, label=f"{name} {tname} {mode}" + (" jitter" if jit else ""))
         axs[1].plot(c[:, 0], c[:, 2], "o" + ls, ms=3)
-    for ax, title in zip(axs, ["median rel. L1", "p95 rel. L1"]):
+    for (name, tname), (med, p95) in tables_err.items():
+        axs[0].plot([1], [max(med, 1e-5)], "kx", ms=5)
+        axs[1].plot([1], [max(p95, 1e-5)], "kx", ms=5)
+    for ax, title in zip(axs, ["median rel. L1 (x: table lobes)", "p95 rel. L1 (x: table lobes)"]):
         ax.axhline(0.03, color="k", lw=0.8, ls="--")
         ax.set_xlabel("K (lobes)")
         ax.set_yscale("log")
         ax.set_title(title)
     axs[0].legend(fontsize=5, ncol=2)
     fig.tight_layout()
+    if a.only_table:
+        return 0
     fig.savefig(out_path("lobe_fit.png"), dpi=90)
     return 0

@@ -6,6 +6,7 @@ in one process, median of --repeats; ratios are against the SVM anisotropic GGX 
   baseline          node_groups/brushed.py (SVM Glossy, GGX, anisotropic)
   osl N layers      the generated OSL shader, N = 1, 4, 16, 32 layers (hash-picked layer and lobe)
   osl all-lobes     4 layers with every lobe summed (lobe_mode="all"): the cost of K without picking
+  osl table lobes   4 layers, tabulated-tilt lobes (lobe_shape="table": binary search + one closure)
   svm N layers      the node-group path (every lobe of a slice summed), N = 1, 4
   K = 1..8          4 layers, OSL, varying the lobe budget (render cost vs fit error, with bench.lobe_fit)
   skip              the baseline scene rendered with the add-on registered vs not: ratio must be ~1
@@ -59,13 +60,13 @@ def main(argv: list[str]) -> int:
     addon, materials, render, sm = _modules()
     tmp = tempfile.mkdtemp(prefix="bench_scratch_cost_")
 
-    def scratch(n_layers, backend="osl", lobes=8, **spec):
+    def scratch(n_layers, backend="osl", lobes=8, shape="fit", **spec):
         layers = None if n_layers == 0 else dict(n_layers=n_layers, theta_deg=360, length=0.3, width=0.005, density=0.2)
 
         def make():
-            mat = materials.new_material(f"S{n_layers}{backend}{lobes}")
+            mat = materials.new_material(f"S{n_layers}{backend}{lobes}{shape}")
             params = sm.validate(profile=("quartic", 0.3), fresnel="aluminium", layers=layers, lobes=lobes,
-                                 base="mirror", resolution=128, slices=64, backend=backend)
+                                 base="mirror", resolution=128, slices=64, backend=backend, lobe_shape=shape)
             return sm.build(mat, params, **spec)
         return make
 
@@ -74,6 +75,7 @@ def main(argv: list[str]) -> int:
     layer_counts = (1, 4) if a.quick else (1, 4, 16, 32)
     setups += [(f"osl {n} layers", scratch(n), True) for n in layer_counts]
     setups += [("osl 4 layers, all lobes", scratch(4, lobe_mode="all"), True)]
+    setups += [("osl 4 layers, table lobes", scratch(4, shape="table"), True)]
     setups += [(f"svm {n} layers", scratch(n, backend="svm"), False) for n in (1, 4)]
     if not a.quick:
         setups += [(f"osl 4 layers, K={k}", scratch(4, lobes=k), True) for k in (1, 2, 4)]

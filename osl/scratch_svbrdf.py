@@ -18,6 +18,11 @@ Per shading point (world space; n = shading normal, t = UV tangent, b = n x t):
 where a lobe is ``microfacet("ggx", N'_j, u_k, alpha_x, width_j)`` with N'_j = cos t_j n + sin t_j v_k
 (see ``precompute.lobe_fit``), R_γ(θo) = (2|θo|/π)^γ and γ_j is γ at the lobe's centre.
 
+With ``ShaderSpec.table`` (tabulated-tilt lobes, ``precompute.lobe_table``) the fitted lobes are
+replaced by one narrow lobe per sample: aim bin b of the slice picked by a binary search in its CDF
+(probability p_b / P), tilt drawn inside the bin with the same hash, weight W_b(θo) P / p_b with
+W_b = R_γb w^m_b + (1 − R_γb) w^0_b (eq. 2 per bin); its expectation is the table slice.
+
 Layer rotation note: eq. 7 is printed as R(Θ_k) diag(l, w)^-1; rotating *after* the stretch would
 leave the scratches axis-aligned (a circle's image under the stretch does not rotate), so the UV
 coordinates are rotated first, as the paper's Fig. 9 shows ("stretched and rotated").
@@ -76,7 +81,7 @@ class LobeTable:
 class ShaderSpec:
     """Everything the generated shader needs; see the module docstring for the model."""
 
-    lobes_m: LobeTable
+    lobes_m: LobeTable | None
     lobes_0: LobeTable | None = None        # None: lossless profile, ρ0 = ρm
     alpha_x: float = 1e-4
     layers: object | None = None            # precompute.scratch_layers.LayerParams, None = dense
@@ -89,6 +94,45 @@ class ShaderSpec:
     alpha_mode: str = "footprint"           # "footprint": eq. 3 over the ray footprint; "mean": α_k = c̄(d) (tests)
     base_pick: bool = True                  # eq. 4 by picking scratches (prob. min(ᾱ,1)) or base: one closure
     name: str = "scratch_svbrdf"
+    table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
+
+
+@dataclass
+class TableLobes:
+    """Tabulated-tilt lobes (``precompute.lobe_table``): per slice s and aim bin b the ρm weight
+    ``w_m [S, M]``, the ρ0 weights ``w_0 [S, M, 3]`` (None: lossless), ``gamma [S, M]``, the
+    bin-picking ``cdf [S, M+1]`` and ``total [S]``; ``alpha_y`` the lobes' GGX width; ``strata``
+    the closures summed in ``lobe_mode="all"`` (h_k = (k + h) / strata)."""
+
+    w_m: np.ndarray
+    w_0: np.ndarray | None
+    gamma: np.ndarray
+    cdf: np.ndarray
+    total: np.ndarray
+    alpha_y: float
+    strata: int = 1
+
+    @classmethod
+    def from_tables(cls, t: dict, strata: int = 1) -> "TableLobes":
+        """From ``precompute.scratch_lobes.table_lobes``."""
+        return cls(np.asarray(t["w_m"], float), None if t.get("w_0") is None else np.asarray(t["w_0"], float),
+                   np.asarray(t["gamma"], float), np.asarray(t["cdf"], float), np.asarray(t["total"], float),
+                   float(t["alpha_y"]), int(strata))
+
+    @property
+    def n_slices(self) -> int:
+        return self.cdf.shape[0]
+
+    @property
+    def n_bins(self) -> int:
+        return self.cdf.shape[1] - 1
+
+
+def _table_arrays(t: TableLobes) -> str:
+    out = const_array("TB_CDF", t.cdf.ravel()) + const_array("TB_TOT", t.total) + const_array("TB_WM", t.w_m.ravel())
+    if t.w_0 is not None:
+        out += const_array("TB_W0", t.w_0.ravel()) + const_array("TB_GAM", t.gamma.ravel())
+    return out
 
 
 def _lobe_arrays(prefix: str, t: LobeTable, jittered: bool = False) -> str:
@@ -106,10 +150,13 @@ def _lobe_arrays(prefix: str, t: LobeTable, jittered: bool = False) -> str:
 def generate(spec: ShaderSpec) -> str:
     """OSL source of the specialised scratch shader for ``spec``."""
     layered = spec.layers is not None
-    lossless = spec.lobes_0 is None
+    tab = spec.table
+    if tab is None and spec.lobes_m is None:
+        raise ValueError("ShaderSpec needs lobes_m (fitted lobes) or table (tabulated-tilt lobes)")
+    lossless = (tab.w_0 is None) if tab is not None else spec.lobes_0 is None
     use_base = spec.use_base and layered
-    ms = spec.lobes_m.n_slices
-    if not lossless and spec.lobes_0.n_slices != ms:
+    ms = tab.n_slices if tab is not None else spec.lobes_m.n_slices
+    if tab is None and not lossless and spec.lobes_0.n_slices != ms:
         raise ValueError("lobes_0 and lobes_m must have the same number of phi_o slices")
     n_layers = spec.layers.n_layers if layered else 1
     summed = n_layers <= MAX_SUMMED_LAYERS
@@ -118,17 +165,29 @@ def generate(spec: ShaderSpec) -> str:
            '#include "stdcycles.h"']
     if layered:
         src.append('#include "node_voronoi.h"')
-    per_slice = int(np.diff(spec.lobes_m.start).max(initial=0))
-    if not lossless:
-        per_slice += int(np.diff(spec.lobes_0.start).max(initial=0))
-    src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}\n#define KMAX2 {max(per_slice, 1)}")
     if spec.lobe_mode not in ("pick", "all"):
         raise ValueError(f"lobe_mode must be 'pick' or 'all', got {spec.lobe_mode!r}")
-    # tilt jitter (stochastic box lobes, precompute.lobe_fit): only generated when a lobe has one
-    jittered = spec.lobes_m.jittered or (not lossless and spec.lobes_0.jittered)
-    layer_lobes = _jitter_subst(_LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)], jittered)
-    funcs = _LOBE_FUNC_ALL if spec.lobe_mode == "all" else _LOBE_FUNC_PICK
-    src.append(_jitter_subst(_LOBE_COMMON + funcs, jittered))
+    if tab is not None:
+        # tabulated-tilt lobes (precompute.lobe_table): one sampled closure, or `strata` stratified ones
+        strata = tab.strata if spec.lobe_mode == "all" else 1
+        if not (isinstance(strata, (int, np.integer)) and 1 <= strata <= 64):
+            raise ValueError(f"table strata must be an integer in [1, 64]; got {strata!r}")
+        src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}\n"
+                   f"#define MB {tab.n_bins}\n#define AY_TB {tab.alpha_y:.9g}\n#define TK {strata}")
+        jittered = False
+        layer_lobes = _LAYER_HEAD + _RHO_TABLE[lossless]
+        src.append(_TABLE_FUNC)
+    else:
+        per_slice = int(np.diff(spec.lobes_m.start).max(initial=0))
+        if not lossless:
+            per_slice += int(np.diff(spec.lobes_0.start).max(initial=0))
+        src.append(f"#define MS {ms}\n#define NL {n_layers}\n#define AX {spec.alpha_x:.9g}\n"
+                   f"#define KMAX2 {max(per_slice, 1)}")
+        # tilt jitter (stochastic box lobes, precompute.lobe_fit): only generated when a lobe has one
+        jittered = spec.lobes_m.jittered or (not lossless and spec.lobes_0.jittered)
+        layer_lobes = _jitter_subst(_LAYER_HEAD + _RHO[(spec.lobe_mode, lossless)], jittered)
+        funcs = _LOBE_FUNC_ALL if spec.lobe_mode == "all" else _LOBE_FUNC_PICK
+        src.append(_jitter_subst(_LOBE_COMMON + funcs, jittered))
     if layered:
         src.append(_DISK_OVERLAP)
     params = []
@@ -143,9 +202,12 @@ def generate(spec: ShaderSpec) -> str:
     if layered:
         params.insert(0, "    point UV = 0,  // connect a UV Map node: scratch layers live in UV space (eq. 7)")
     src.append(f"shader {spec.name}(\n" + "\n".join(params) + "\n{")
-    body = [_lobe_arrays("LM", spec.lobes_m, jittered)]
-    if not lossless:
-        body.append(_lobe_arrays("L0", spec.lobes_0, jittered))
+    if tab is not None:
+        body = [_table_arrays(tab)]
+    else:
+        body = [_lobe_arrays("LM", spec.lobes_m, jittered)]
+        if not lossless:
+            body.append(_lobe_arrays("L0", spec.lobes_0, jittered))
     if layered:
         body.append(const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
                     + const_array("COV", spec.coverage))
@@ -285,6 +347,55 @@ closure color pick_lobe(int sm[], int dm[], float tm[], float am[], float wm[], 
     return c;
 }
 '''
+
+_TABLE_FUNC = r'''
+// Tabulated-tilt lobes (precompute.lobe_table): pick aim bin b of slice s with probability p_b / P
+// (binary search in the CDF), draw the aim phi_i uniformly inside the bin with the same number,
+// tilt the narrow GGX normal to mirror the slice's phi_o into phi_i, weight W_b(theta_o) P / p_b with
+// W_b = R_gamma_b w^m_b + (1 - R_gamma_b) w^0_b (eq. 2).  TK stratified closures: h_k = (k + h) / TK.
+closure color table_lobes(float cdf[], float tot[], float wm[], float w0[], float gam[], int use0, int s,
+                          float x, float h, vector u, vector v, normal n)
+{
+    closure color c = 0;
+    float P = tot[s];
+    if (P <= 0.0)
+        return c;
+    float phi_s = -M_PI_2 + (s + 0.5) * M_PI / MS;
+    int base = s * (MB + 1);
+    for (int k = 0; k < TK; k++) {
+        float hk = (k + h) / TK;
+        int lo = 0, hi = MB;
+        while (hi - lo > 1) {
+            int mid = (lo + hi) / 2;
+            if (cdf[base + mid] <= hk) lo = mid; else hi = mid;
+        }
+        float c0 = cdf[base + lo], c1 = cdf[base + lo + 1];
+        float fr = (c1 > c0) ? clamp((hk - c0) / (c1 - c0), 0.0, 1.0) : 0.5;
+        float tilt = 0.5 * (-M_PI_2 + (lo + fr) * M_PI / MB + phi_s);
+        int q = s * MB + lo;
+        color W = color(wm[q]);
+        float p = wm[q];
+        if (use0) {
+            float r = (x > 0.0) ? pow(x, gam[q]) : 0.0;
+            color w_0 = color(w0[3 * q], w0[3 * q + 1], w0[3 * q + 2]);
+            W = r * W + (1.0 - r) * w_0;
+            p += (w_0[0] + w_0[1] + w_0[2]) / 3.0;
+        }
+        if (p > 0.0)
+            c += (P / (p * TK)) * W * microfacet("ggx", normalize(cos(tilt) * n + sin(tilt) * v), u, AX, AY_TB, 0.0, 0);
+    }
+    return c;
+}
+'''
+
+_RHO_TABLE = {  # lossless -> the slice's closure rho (eq. 2) from the tabulated-tilt lobes
+    True: r'''
+        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_WM, TB_WM, TB_WM, 0, s, x, h_lobe, u, v, n);
+''',
+    False: r'''
+        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_WM, TB_W0, TB_GAM, 1, s, x, h_lobe, u, v, n);
+''',
+}
 
 _DISK_OVERLAP = r'''
 // Fraction of a disk footprint (radius R) covered by a scratch disk (radius a) at centre distance r:

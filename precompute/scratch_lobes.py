@@ -13,6 +13,9 @@ and attaches to every lobe the γ of eq. 2 at the lobe centre (φi = 2·tilt −
 profile (ρ0 = ρm) returns no ρ0 lobes.  With ``jitter=True`` every lobe also has a tilt jitter j
 (the shader draws the tilt uniformly in [t − j, t + j] per sample: a box of φi width 4 j,
 ``cycles_ggx.cone_collapse_binned_jittered``).  Angles in radians.
+
+``table_lobes(brdf, slices)`` is the exact alternative (``precompute.lobe_table``): per slice one
+weight per φi bin for ρm and ρ0, γ per bin and the shader's bin-picking CDF; no fit.
 """
 from __future__ import annotations
 
@@ -20,11 +23,11 @@ import numpy as np
 
 import sys
 
-from . import cache, cycles_beckmann, cycles_ggx, lobe_fit
+from . import cache, cycles_beckmann, cycles_ggx, lobe_fit, lobe_table
 from .cycles_ggx import cone_collapse_binned, cone_collapse_binned_jittered
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
-__all__ = ["lobe_tables", "nnls_batched"]
+__all__ = ["lobe_tables", "nnls_batched", "table_lobes"]
 
 def nnls_batched(A: np.ndarray, b: np.ndarray, iters: int = 300) -> np.ndarray:
     """min ||A x - b||² s.t. x >= 0 for a batch: A [B, m, K], b [B, m] -> x [B, K].
@@ -158,3 +161,50 @@ def _conserve_energy(w: np.ndarray, atoms: np.ndarray, rows: np.ndarray, edges: 
     have = np.einsum("skc,sk->sc", w, lobe_albedo)
     scale = np.where(have > 0, target / np.where(have > 0, have, 1.0), 0.0)
     return w * scale[:, None, :]
+
+
+def table_lobes(brdf, slices: int = 64, use_cache: bool = True) -> dict:
+    """Tabulated-tilt lobes for the shader (``precompute.lobe_table``) at the ``slices`` slice centres.
+
+    Returns a dict: ``phi_o [S]``, ``alpha_x``, ``alpha_y`` (the table lobes' GGX width), ``w_m [S, M]``
+    (ρm closure weight per aim bin, mono), ``w_0 [S, M, 3]`` (ρ0, RGB; None when lossless), ``gamma
+    [S, M]`` (γ of eq. 2 per bin), ``cdf [S, M+1]`` and ``total [S]`` (the bin-picking distribution
+    p_b = w^m_b + mean(w^0_b)), ``error_m`` / ``error_0`` [S] (rel. L1 of what the lobes render on
+    average vs ρ cos, worst channel).  Cached by a hash of the tables.
+    """
+    if not isinstance(slices, (int, np.integer)) or not 4 <= slices <= 512:
+        raise ValueError(f"slices must be an integer in [4, 512], got {slices!r}")
+    arrays = brdf.arrays()
+    inputs = {"tables": {k: v for k, v in arrays.items() if k in ("rho0", "rho_m", "gamma")}, "slices": int(slices)}
+    version = cache.code_version(sys.modules[__name__], lobe_fit, lobe_table, cycles_ggx)
+    flat = cache.cached_arrays("scratch_table_lobes", version, inputs, lambda: _table_lobes(brdf, int(slices)),
+                               enabled=use_cache)
+    out = {k: flat[k] for k in ("phi_o", "w_m", "gamma", "cdf", "total", "error_m")}
+    out["alpha_x"] = float(flat["alpha_x"][0])
+    out["alpha_y"] = float(flat["alpha_y"][0])
+    out["w_0"] = flat.get("w_0")
+    out["error_0"] = flat.get("error_0")
+    return out
+
+
+def _table_lobes(brdf, slices: int) -> dict:
+    rho_m = _as_channels(brdf.rho_m)
+    rho_0 = _as_channels(brdf.rho0)
+    M = rho_m.shape[0]
+    S = min(slices, M)
+    phi_o = lobe_fit.slice_centres(S)
+    ax = 1e-4
+    ay = lobe_table.default_width(M)
+    rows_m = lobe_fit.rows_at(rho_m.mean(-1), phi_o)                       # [S, M]
+    w_m, err_m, A = lobe_table.fit_bins(rows_m, phi_o, ay, ax)
+    out = {"phi_o": phi_o, "alpha_x": np.array([ax]), "alpha_y": np.array([ay]), "w_m": w_m, "error_m": err_m,
+           "gamma": lobe_fit.rows_at(_as_channels(brdf.gamma).mean(-1), phi_o)}
+    w_0 = None
+    if not np.allclose(rho_0, rho_m, rtol=1e-6, atol=1e-9):
+        rows_0 = lobe_fit.rows_at(rho_0, phi_o)                            # [S, M, C]
+        w_0, err_0, _ = lobe_table.fit_bins(rows_0, phi_o, ay, ax, atoms=A)
+        if w_0.shape[-1] == 1:
+            w_0 = np.repeat(w_0, 3, -1)
+        out.update({"w_0": w_0, "error_0": err_0})
+    out["cdf"], out["total"] = lobe_table.proposal(w_m, w_0)
+    return out

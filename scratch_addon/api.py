@@ -40,10 +40,16 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
       layers      None (dense scratches everywhere), a layer count, a dict of
                   ``precompute.scratch_layers.LayerParams`` fields (n_layers, theta_deg, length,
                   width, density, seed; lengths in UV units) or a LayerParams
-      lobes       K, at most this many tilted GGX lobes per φo slice (1..16, default 8)
-      box_lobes   also fit a tilt jitter per lobe (stochastic box lobes: the shader draws the tilt
-                  in [t - j, t + j] per sample); closer fits of round profiles, slower fit (default False)
-      mode        "lobes" (the product path, light sampling kept) or "reference" (validation)
+      lobes       K, at most this many fitted tilted GGX lobes per φo slice (1..16, default 8;
+                  lobe_shape "fit"/"box" and the SVM backend)
+      lobe_shape  "table" (default with the OSL backend: tabulated-tilt lobes, ``precompute.lobe_table``:
+                  the slice sampled bin by bin by one narrow lobe, < 0.1 % rel. L1 on quartics, no fit),
+                  "fit" (default with backend "svm": <= K fitted tilted lobes, smooth, 5-11 % on quartics)
+                  or "box" (fitted lobes with a tilt jitter each: the shader draws the tilt in
+                  [t - j, t + j] per sample; closer fits of round profiles, slower fit)
+      box_lobes   True = lobe_shape "box" (kept for scripts written before lobe_shape)
+      mode        "lobes" (the product path, light sampling kept) or "reference" (validation: the
+                  exact table through ray_portal_bsdf; no NEE and lamps are not seen, use world light)
       resolution  scratch-BRDF table size M (64/128/256/512), slices φo slices in the shader
       tint        RGB multiplier of the scratch reflectance; diffuse: None, RGB or "wood"
     ``material``: rebuild this material in place instead of creating one.  Bad values raise

@@ -53,10 +53,12 @@ class SCRATCH_PT_material(bpy.types.Panel):
         if s.diffuse_type == "color":
             box.prop(s, "diffuse_color")
         box = col.box()
+        box.prop(s, "lobe_shape")
         row = box.row()
-        row.prop(s, "lobes")
+        sub = row.row()
+        sub.active = s.lobe_shape != "table"   # K only shapes fitted lobes
+        sub.prop(s, "lobes")
         row.prop(s, "resolution")
-        box.prop(s, "box_lobes")
         box.prop(s, "mode", expand=True)
         col.operator("scratch.update_material", icon="FILE_REFRESH")
         err = mat.get("scratch_addon_fit_error")

@@ -50,9 +50,13 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
     tint: bpy.props.FloatVectorProperty(name="Tint", subtype="COLOR", size=3, default=(1, 1, 1), min=0, max=1)
     lobes: bpy.props.IntProperty(name="Lobes (K)", default=8, min=1, max=16,
                                  description="At most this many tilted GGX lobes per view slice")
-    box_lobes: bpy.props.BoolProperty(name="Box Lobes", default=False,
-                                      description="Also fit a tilt jitter per lobe (stochastic box lobes): "
-                                                  "closer fit of round/flat-bottomed profiles, slower fit")
+    lobe_shape: bpy.props.EnumProperty(
+        name="Lobe Shape", default="table",
+        items=[("fit", "Fitted", "At most K fitted tilted GGX lobes per view slice (smooth, least noise)"),
+               ("box", "Box", "Fitted lobes with a tilt jitter each (stochastic box lobes): closer fit of "
+                              "round profiles, slower fit"),
+               ("table", "Table", "Tabulated-tilt lobes: the table sampled bin by bin, exact (< 1 %), no fit; "
+                                  "OSL only, a little more noise under small lights")])
     use_layers: bpy.props.BoolProperty(name="Scratch Layers", default=True,
                                        description="Off: scratches everywhere (densely brushed)")
     n_layers: bpy.props.IntProperty(name="Layers", default=4, min=1, max=64)
@@ -95,7 +99,7 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             base["roughness"] = self.base_roughness
         diffuse = {"none": None, "color": tuple(self.diffuse_color), "wood": "wood"}[self.diffuse_type]
         return dict(profile=profile, fresnel=fresnel, layers=layers, lobes=self.lobes, base=base, mode=self.mode,
-                    resolution=int(self.resolution), tint=tuple(self.tint), diffuse=diffuse, box_lobes=self.box_lobes)
+                    resolution=int(self.resolution), tint=tuple(self.tint), diffuse=diffuse, lobe_shape=self.lobe_shape)
 
     def from_params(self, params: dict) -> None:
         """Fill the settings from preset parameters (only the fields a preset names)."""
@@ -124,8 +128,10 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             self.base_roughness = base["roughness"]
         if "lobes" in params:
             self.lobes = params["lobes"]
-        if "box_lobes" in params:
-            self.box_lobes = bool(params["box_lobes"])
+        if "lobe_shape" in params:
+            self.lobe_shape = params["lobe_shape"]
+        elif "box_lobes" in params:
+            self.lobe_shape = "box" if params["box_lobes"] else "fit"
         diffuse = params.get("diffuse")
         if diffuse is None:
             self.diffuse_type = "none"

@@ -13,6 +13,7 @@ import json
 from dataclasses import dataclass
 
 import bpy
+import numpy as np
 
 from . import _deps, materials, osl_compile
 
@@ -26,6 +27,9 @@ osl_gen = _deps.sibling("osl.scratch_svbrdf")
 BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
 MODES = ("lobes", "reference")
 BACKENDS = ("osl", "svm")
+#: "fit": <= K fitted tilted lobes; "box": fitted lobes with a tilt jitter each; "table": tabulated-tilt
+#: lobes (precompute.lobe_table: the slice sampled bin by bin, exact, no fit; OSL only)
+LOBE_SHAPES = ("fit", "box", "table")
 
 
 @dataclass
@@ -43,7 +47,11 @@ class ScratchParams:
     tint: tuple
     diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
     backend: str = "osl"    # "osl" (CPU/OptiX, footprint-filtered α, hash-picked lobes) or "svm" (GPU/EEVEE)
-    box_lobes: bool = False  # also fit a tilt jitter per lobe (stochastic box lobes; fit ~1-3x slower)
+    lobe_shape: str = "table"  # one of LOBE_SHAPES (validate: "table" on OSL, "fit" on SVM unless given)
+
+    @property
+    def box_lobes(self) -> bool:
+        return self.lobe_shape == "box"
 
 
 def _as_layers(layers):
@@ -95,7 +103,8 @@ def _as_fresnel(fresnel):
 
 
 def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
-             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl", box_lobes=False) -> ScratchParams:
+             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl", box_lobes=False,
+             lobe_shape=None) -> ScratchParams:
     """Check every parameter; raise ValueError naming the parameter and its allowed range."""
     profile = profiles.quartic(0.2) if profile is None else _as_profile(profile)
     if not isinstance(profile, profiles.Profile):
@@ -118,11 +127,19 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError("mode must be 'lobes' with backend 'svm' (the reference mode needs OSL)")
     if not isinstance(box_lobes, bool):
         raise ValueError(f"box_lobes must be True or False, got {box_lobes!r}")
+    if lobe_shape is None:  # default: exact table lobes on OSL; the SVM group can only read fitted lobes
+        lobe_shape = "box" if box_lobes else ("table" if backend == "osl" else "fit")
+    if lobe_shape not in LOBE_SHAPES:
+        raise ValueError(f"lobe_shape must be one of {', '.join(LOBE_SHAPES)}; got {lobe_shape!r}")
+    if box_lobes and lobe_shape != "box":
+        raise ValueError(f"box_lobes=True contradicts lobe_shape={lobe_shape!r} (use lobe_shape='box')")
+    if backend == "svm" and lobe_shape == "table":
+        raise ValueError("lobe_shape 'table' needs backend 'osl' (the SVM group reads fitted lobes from images)")
     rgba = materials.check_color("tint", tint)
     if diffuse is not None and diffuse != "wood":
         diffuse = materials.check_color("diffuse", diffuse)[:3]
     return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices,
-                         rgba[:3], diffuse, backend, box_lobes)
+                         rgba[:3], diffuse, backend, lobe_shape)
 
 
 def _check_uvs_for(obj_meshes) -> None:
@@ -198,15 +215,34 @@ def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_optio
             rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,
             use_base=params.base["type"] != "none", **layer_kw))
     if lobe_data is None:
-        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices, jitter=params.box_lobes)
-
-    def table(entry):
-        return None if entry is None else osl_gen.LobeTable.from_fit(entry)
-
-    spec = osl_gen.ShaderSpec(
-        lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]), alpha_x=lobe_data["alpha_x"],
-        layers=layers, use_base=params.base["type"] != "none", **layer_kw, **spec_options)
+        lobe_data = _lobe_data(params, brdf)
+    if params.lobe_shape == "table":
+        lobes = dict(lobes_m=None, table=osl_gen.TableLobes.from_tables(lobe_data, strata=params.lobes))
+    else:
+        def table(entry):
+            return None if entry is None else osl_gen.LobeTable.from_fit(entry)
+        lobes = dict(lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]))
+    spec = osl_gen.ShaderSpec(**lobes, alpha_x=lobe_data["alpha_x"], layers=layers,
+                              use_base=params.base["type"] != "none", **layer_kw, **spec_options)
     return osl_gen.generate(spec)
+
+
+def _lobe_data(params: ScratchParams, brdf) -> dict:
+    """Lobe tables for ``params`` (cached): tabulated-tilt lobes, or <= K fitted (plain / box) lobes."""
+    if params.lobe_shape == "table":
+        return scratch_lobes.table_lobes(brdf, slices=params.slices)
+    # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
+    return scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
+                                     dists="ggx" if params.backend == "svm" else "auto", jitter=params.box_lobes)
+
+
+def fit_error(lobe_data: dict) -> float:
+    """Worst per-slice rel. L1 error of ``lobe_data`` (fitted or table lobes) against ρ cos."""
+    if "cdf" in lobe_data:
+        errs = [lobe_data["error_m"]] + ([] if lobe_data.get("error_0") is None else [lobe_data["error_0"]])
+    else:
+        errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
+    return float(max(np.max(e) for e in errs))
 
 
 def _wood_texture(tree, socket) -> None:
@@ -235,12 +271,7 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     step(0.05)
     brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
     step(0.4)
-    lobe_data = None
-    if params.mode == "lobes":
-        # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
-        lobe_data = scratch_lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
-                                              dists="ggx" if params.backend == "svm" else "auto",
-                                              jitter=params.box_lobes)
+    lobe_data = _lobe_data(params, brdf) if params.mode == "lobes" else None
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()
@@ -297,13 +328,12 @@ def _finish(material, tree, out, surface, params: ScratchParams, lobe_data, step
     material.cycles.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
     material["scratch_addon_kind"] = "scratch_svbrdf"
     if lobe_data is not None:
-        material["scratch_addon_fit_error"] = float(max(
-            lobe_data["m"]["error"].max(), 0.0 if lobe_data["0"] is None else lobe_data["0"]["error"].max()))
+        material["scratch_addon_fit_error"] = fit_error(lobe_data)
     material["scratch_addon_params"] = json.dumps({
         "profile": params.profile.cache_key(), "fresnel": None if params.fresnel is None else params.fresnel.cache_key(),
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
         "resolution": params.resolution, "slices": params.slices, "tint": list(params.tint),
-        "diffuse": params.diffuse, "backend": params.backend, "box_lobes": params.box_lobes}, default=_jsonable)
+        "diffuse": params.diffuse, "backend": params.backend, "lobe_shape": params.lobe_shape}, default=_jsonable)
     step(1.0)
     return material

@@ -19,11 +19,14 @@ def test_svm_white_furnace(addon, scene, render_dir, layers):
     assert abs(img.mean() - 1.0) < 0.02, img.mean()
 
 
-def test_svm_matches_osl_path(addon, scene, render_dir):
-    prof = _profiles(addon)["v_groove"]
+@pytest.mark.parametrize("profile, osl_shape", [("v_groove", "fit"), ("v_groove", "table"), ("quartic", "table")])
+def test_svm_matches_osl_path(addon, scene, render_dir, profile, osl_shape):
+    # osl_shape "table" is the OSL default: the SVM group (fitted lobes) against the exact table lobes
+    prof = _profiles(addon)[profile]
     means = {}
     for backend in ("osl", "svm"):
-        mat = _material(addon, f"S_{backend}", profile=prof, fresnel="gold", layers=LAYERS16, base="mirror", backend=backend)
+        mat = _material(addon, f"S_{backend}", profile=prof, fresnel="gold", layers=LAYERS16, base="mirror", backend=backend,
+                        lobe_shape=osl_shape if backend == "osl" else "fit")
         if backend == "osl":
             _scene(addon, scene, mat, world="studio", samples=64)
         else:
@@ -32,7 +35,9 @@ def test_svm_matches_osl_path(addon, scene, render_dir):
         img, _ = addon.render.render_array(scene, str(render_dir), backend)
         means[backend] = img.mean(axis=(0, 1))
     rel = np.abs(means["svm"] - means["osl"]) / means["osl"]
-    # measured 0.7-1.2 % (binary α with pixel sampling vs footprint-filtered α); noise ~0.5 %
+    print(f"SVM (fitted lobes) vs OSL ({osl_shape} lobes), {profile}/gold: mean rel. diff per RGB = {rel}")
+    # measured 0.7-1.2 % (binary α with pixel sampling vs footprint-filtered α; fitted vs table lobes
+    # adds little to the image mean); noise ~0.5 %
     assert rel.max() < 0.03, rel
 
 

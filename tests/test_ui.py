@@ -84,3 +84,24 @@ def test_panel_draws_only_existing_properties(addon, scene):
     names = {name for _data, name in log}
     known = set(mat.scratch.bl_rna.properties.keys())
     assert len(names) > 15 and names <= known, names - known
+
+
+def test_lobe_shape_from_the_panel_builds_table_lobes(addon, scene):
+    import bpy
+
+    obj = _plane(addon, scene)
+    assert bpy.ops.scratch.add_preset_material(preset="fig14a_shallow") == {"FINISHED"}
+    mat = obj.active_material
+    s = mat.scratch
+    assert s.lobe_shape == "table"
+    src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    assert "table_lobes(" in src and "pick_lobe" not in src
+    assert mat["scratch_addon_fit_error"] < 0.03
+    s.lobe_shape, s.resolution = "fit", "64"
+    with bpy.context.temp_override(material=mat):
+        assert bpy.ops.scratch.update_material() == {"FINISHED"}
+    src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    assert "pick_lobe(" in src and "table_lobes" not in src
+    assert mat.scratch.to_params()["lobe_shape"] == "fit"
+    mat.scratch.from_params({"box_lobes": True})        # settings stored before lobe_shape existed
+    assert mat.scratch.lobe_shape == "box"

@@ -1,0 +1,135 @@
+"""Tabulated-tilt lobes: a φo slice of a scratch BRDF table rendered exactly by one sampled lobe.
+
+The fitted lobes of ``lobe_fit`` approximate a slice rho(phi_o, phi_i) cos(phi_i) (Raymond et al.
+2016, eq. 5) by K smooth lobes; the caustic spikes of smooth profiles (quartics: 1/sqrt folds a bin
+wide) keep their error at 5-11 % rel. L1 (a 3-bin smoothing of the slice alone costs 5-6 %).  A
+*table lobe* reproduces the slice bin by bin instead, and still keeps light sampling:
+
+- aim bin b of the M phi_i bins gets a narrow tilted GGX closure whose tilt is drawn uniformly over
+  the tilts that mirror phi_o into the bin, t in [(e_b + phi_o)/2, (e_{b+1} + phi_o)/2]: a box lobe
+  (``cycles_ggx.cone_collapse_binned_jittered``, jitter = bin width / 4) of weight w_b;
+- the weights solve  sum_b w_b A_b(phi_i) = rho cos  on the bins (A_b the bin-averaged box lobe with
+  Cycles' G2 / horizon losses; diagonally dominant, a few projected Jacobi sweeps), then every slice
+  is rescaled to the table's exact albedo;
+- the shader picks bin b with probability p_b / P (p_b = w^m_b + mean(w^0_b), P = sum_b p_b, a CDF
+  per slice and a binary search), draws the tilt inside the bin with the same random number, and
+  weights the closure by W_b(theta_o) P / p_b with W_b = R_gamma_b(theta_o) w^m_b + (1 - R) w^0_b (eq. 2,
+  gamma of the bin).  The average over samples is sum_b W_b A_b: the slice itself, exact up to the
+  lobe blur inside a bin.  With K stratified closures (h_k = (k + h)/K), each gets weight / K.
+
+The rendered closure is an ordinary ``microfacet("ggx", N', u, alpha_x, alpha_y)`` lobe, so NEE and
+MIS work as for fitted lobes; a narrow lobe makes NEE rarely useful for small lights (noise like a
+stochastic mirror), the price of exactness.  Units: radians; weights are Cycles closure weights.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .cycles_ggx import cone_collapse_binned_jittered
+from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
+
+__all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model"]
+
+
+def default_width(M: int) -> float:
+    """GGX alpha_y of table lobes: tan(pi / (256 M)), floored at 3e-6 (Cycles needs alpha_x alpha_y > 2e-10).
+
+    GGX slope tails are heavy: a box lobe spills ~ 2 alpha_y / (pi / M) of its weight into the
+    neighbouring bins, which the non-negative weights cannot take back next to an empty bin (a
+    V-groove's one-bin mirror peaks: 12 % rel. L1 at alpha_y = tan(pi / 16 M), 0.8 % at this width).
+    """
+    return float(max(np.tan(np.pi / M / 256.0), 3e-6))
+
+
+def bin_atoms(phi_o, M: int, alpha_y=None, alpha_x: float = 1e-4) -> np.ndarray:
+    """Bin-averaged cone collapse A[s, b, m] of the box lobe aimed at bin b, for view angles phi_o [S].
+
+    Tilt uniform over [(e_b + phi_o)/2, (e_{b+1} + phi_o)/2] (``cone_collapse_binned_jittered`` with
+    centre (c_b + phi_o)/2 and jitter pi/(4 M)); what Cycles renders per unit closure weight, in 1/rad.
+    """
+    if not (isinstance(M, (int, np.integer)) and M >= 4):
+        raise ValueError(f"M must be an integer >= 4; got {M!r}")
+    phi_o = np.atleast_1d(np.asarray(phi_o, float))
+    if phi_o.ndim != 1 or not np.all(np.isfinite(phi_o)) or np.any(np.abs(phi_o) >= 0.5 * np.pi):
+        raise ValueError("phi_o must be a 1D array of angles in (-pi/2, pi/2) radians")
+    ay = default_width(M) if alpha_y is None else float(alpha_y)
+    e = phi_bin_edges(M)
+    tilt = 0.5 * (phi_bin_centres(M)[None, :] + phi_o[:, None])                       # [S, M]
+    return cone_collapse_binned_jittered(phi_o[:, None], e, tilt, ay, np.pi / (4 * M), alpha_x)
+
+
+def model(weights, atoms) -> np.ndarray:
+    """sum_b w[s, b(, c)] A[s, b, m] -> [S, M(, C)]: what the sampled table lobe renders on average."""
+    w = np.asarray(weights, float)
+    if w.ndim == 2:
+        return np.einsum("sb,sbm->sm", w, atoms)
+    return np.einsum("sbc,sbm->smc", w, atoms)
+
+
+def fit_bins(rows, phi_o, alpha_y=None, alpha_x: float = 1e-4, sweeps: int = 30, atoms=None):
+    """Closure weights w [S, M(, C)] of the table lobes reproducing ``rows`` (rho at phi_o, [S, M(, C)]).
+
+    Target f = rho cos(phi_i) in bin averages (rho C_i / (pi/M), C_i the integral of cos over bin i,
+    as ``lobe_fit.fit_table``).  Projected Jacobi on sum_b w_b A_b = f (w >= 0), then each slice and
+    channel is scaled to the table's albedo sum_i C_i rho_i (the lobes' total reflectance).
+    Returns (w, error [S] rel. L1 of the model, worst channel, atoms [S, M, M]).
+    """
+    rows = np.asarray(rows, float)
+    scalar = rows.ndim == 2
+    r3 = rows[..., None] if scalar else rows
+    S, M, C = r3.shape
+    if not np.all(np.isfinite(r3)) or np.any(r3 < 0):
+        raise ValueError("rows must be finite and >= 0")
+    if not (isinstance(sweeps, (int, np.integer)) and 0 <= sweeps <= 1000):
+        raise ValueError(f"sweeps must be an integer in [0, 1000]; got {sweeps!r}")
+    e = phi_bin_edges(M)
+    A = bin_atoms(phi_o, M, alpha_y, alpha_x) if atoms is None else atoms
+    f = r3 * (np.diff(np.sin(e)) / np.diff(e))[None, :, None]                         # [S, M, C]
+    diag = np.einsum("sbb->sb", A)                                                     # [S, M]
+    # bins no lobe can reach (the aim's tilted normal below the view) stay empty
+    ok = diag > 1e-3 * np.max(diag, axis=1, keepdims=True)
+    inv = np.where(ok, 1.0 / np.where(ok, diag, 1.0), 0.0)[..., None]
+    w = f * inv
+    for _ in range(sweeps):
+        w = np.maximum(w + (f - np.einsum("sbc,sbm->smc", w, A)) * inv, 0.0)
+    # exact albedo per slice and channel (white furnace: sum_i C_i rho_i)
+    albedo = np.einsum("smc,m->sc", r3, np.diff(np.sin(e)))
+    have = np.einsum("sbc,sb->sc", w, A.sum(-1) * (np.pi / M))
+    w = w * np.where(have > 0, albedo / np.where(have > 0, have, 1.0), 0.0)[:, None, :]
+    fit = np.einsum("sbc,sbm->smc", w, A)
+    err = np.max(np.stack([relative_l1(fit[..., c], f[..., c]) for c in range(C)]), axis=0)
+    return (w[..., 0] if scalar else w), err, A
+
+
+def proposal(w_m, w_0=None):
+    """The shader's bin-picking distribution: CDF [S, M+1] of p_b = w^m_b (+ mean_c w^0_b) and P [S]."""
+    p = np.asarray(w_m, float)
+    if w_0 is not None:
+        p = p + np.asarray(w_0, float).mean(-1)
+    cum = np.concatenate([np.zeros((p.shape[0], 1)), np.cumsum(p, 1)], 1)
+    total = cum[:, -1]
+    cdf = cum / np.where(total > 0, total, 1.0)[:, None]
+    # from the last non-empty bin on the CDF is exactly 1, so no h < 1 can land in a trailing empty bin
+    return np.where((cum >= total[:, None]) & (total[:, None] > 0), 1.0, cdf), total
+
+
+def sample_bins(cdf, s, h):
+    """What the shader does with a uniform h in [0, 1): bin b (binary search) and the fraction inside it.
+
+    ``cdf`` [S, M+1]; ``s``, ``h`` arrays of slice indices and random numbers -> (b, frac); the
+    sampled aim is phi_i = e_b + frac pi/M and the tilt (phi_i + phi_o_s) / 2.
+    """
+    cdf = np.asarray(cdf, float)
+    M = cdf.shape[1] - 1
+    s, h = np.broadcast_arrays(np.asarray(s, int), np.asarray(h, float))
+    lo = np.zeros(s.shape, int)
+    hi = np.full(s.shape, M)
+    for _ in range(int(np.ceil(np.log2(M))) + 1):        # the shader's loop: while (hi - lo > 1)
+        mid = (lo + hi) // 2
+        go = (hi - lo > 1)
+        below = cdf[s, mid] <= h
+        lo = np.where(go & below, mid, lo)
+        hi = np.where(go & ~below, mid, hi)
+    c0, c1 = cdf[s, lo], cdf[s, lo + 1]
+    frac = np.where(c1 > c0, (h - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.5)
+    return lo, np.clip(frac, 0.0, 1.0)

@@ -1,0 +1,111 @@
+"""Tabulated-tilt lobes (precompute.lobe_table): a scratch BRDF slice rendered bin by bin by one
+sampled narrow lobe, against independent references.
+
+- the error target of issue #4 (<= 3 % rel. L1 per slice) on quartic, circular and V-groove tables
+  from the real beam tracer, where <= 8 fitted lobes stay at 5-11 % (tests/test_lobe_fit.py);
+- the model (sum_b w_b A_b) against a Monte Carlo average of what the shader samples (bin by the
+  CDF, tilt inside the bin, weight W P / p), with plain ``cone_collapse_binned`` lobes;
+- the shader's binary search (``sample_bins``) against ``np.searchsorted``;
+- energy: every slice reflects exactly the table's albedo; bad input raises.
+"""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from precompute import cycles_ggx, fresnel, lobe_fit as lf, lobe_table as lt, profiles, scratch_brdf, scratch_lobes
+
+M = 64
+
+
+@pytest.fixture(scope="module")
+def tables():
+    return {name: scratch_brdf.simulate(p, resolution=M).rho_m for name, p in [
+        ("quartic_0.2", profiles.quartic(0.2, segments=1024)), ("quartic_1.0", profiles.quartic(1.0, segments=1024)),
+        ("circular_0.5", profiles.circular(0.5, segments=1024)), ("v_groove_45", profiles.v_groove(45.0))]}
+
+
+@pytest.mark.parametrize("name", ["quartic_0.2", "quartic_1.0", "circular_0.5", "v_groove_45"])
+def test_table_lobes_meet_issue_target(tables, name):
+    phi = lf.slice_centres(32)
+    rows = lf.rows_at(tables[name], phi)
+    w, err, A = lt.fit_bins(rows, phi)
+    # measured max 0.05-0.8 % (V-groove: one-bin mirror peaks, the GGX tail spill); target 3 %
+    assert err.max() <= 0.03, (name, err.max())
+    # the error is really that of the model: recompute it independently
+    e = lf.phi_bin_edges(M)
+    f = rows * (np.diff(np.sin(e)) / np.diff(e))
+    assert np.allclose(lf.relative_l1(lt.model(w, A), f), err)
+
+
+def test_energy_is_the_tables_albedo(tables):
+    phi = lf.slice_centres(16)
+    rows = lf.rows_at(tables["quartic_1.0"], phi)
+    w, _, A = lt.fit_bins(rows, phi)
+    e = lf.phi_bin_edges(M)
+    albedo = rows @ np.diff(np.sin(e))
+    rendered = (lt.model(w, A) * np.diff(e)).sum(1)
+    np.testing.assert_allclose(rendered, albedo, rtol=1e-9)
+
+
+def test_model_equals_monte_carlo_of_the_shader_sampling():
+    """Average of what the shader draws (plain narrow lobes at sampled tilts, weight P / p_b) = the model."""
+    rng = np.random.default_rng(1)
+    Mb, S = 32, 3
+    phi = np.array([-0.9, 0.1, 0.7])
+    rows = rng.random((S, Mb)) * (rng.random((S, Mb)) > 0.4)
+    w, _, A = lt.fit_bins(rows, phi)
+    cdf, total = lt.proposal(w)
+    n = 20000
+    h = (np.arange(n) + rng.random(n)) / n                  # stratified uniforms
+    e = lf.phi_bin_edges(Mb)
+    ay = lt.default_width(Mb)
+    for s in range(S):
+        b, fr = lt.sample_bins(cdf, np.full(n, s), h)
+        tilt = 0.5 * (e[b] + fr * np.pi / Mb + phi[s])
+        atoms = cycles_ggx.cone_collapse_binned(phi[s], e, tilt, ay, 1e-4)          # [n, Mb]
+        mc = (total[s] * atoms).mean(0)                                               # weight P/p * p-weight w: P
+        ref = lt.model(w[s:s + 1], A[s:s + 1])[0]
+        assert lf.relative_l1(mc, ref) < 0.01, (s, lf.relative_l1(mc, ref))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(4, 300), st.lists(st.floats(0.0, 1.0, exclude_max=True), min_size=1, max_size=20),
+       st.integers(0, 2**31 - 1))
+def test_binary_search_is_searchsorted(Mb, hs, seed):
+    rng = np.random.default_rng(seed)
+    p = rng.random((2, Mb)) * (rng.random((2, Mb)) > 0.5)
+    p[:, 0] += 1e-3
+    cdf, _ = lt.proposal(p)
+    h = np.array(hs)
+    for s in range(2):
+        b, fr = lt.sample_bins(cdf, np.full(h.size, s), h)
+        expect = np.searchsorted(cdf[s], h, side="right") - 1
+        np.testing.assert_array_equal(b, np.clip(expect, 0, Mb - 1))
+        assert np.all(p[s, b] > 0)                            # empty bins are never picked
+        assert np.all((fr >= 0) & (fr <= 1))
+
+
+def test_lossy_tables_and_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SCRATCH_ADDON_CACHE", str(tmp_path))
+    brdf = scratch_brdf.simulate(profiles.quartic(0.3, segments=512), resolution=M, fresnel=fresnel.conductor_preset("gold"))
+    t = scratch_lobes.table_lobes(brdf, slices=16, use_cache=False)
+    assert t["w_0"].shape == (16, M, 3) and t["w_m"].shape == (16, M) and t["cdf"].shape == (16, M + 1)
+    assert t["error_m"].max() < 0.03 and t["error_0"].max() < 0.03
+    # gold: rho_0 is redder than rho_m at normal view
+    assert t["w_0"][..., 0].sum() > t["w_0"][..., 2].sum()
+    np.testing.assert_allclose(t["cdf"][:, -1], 1.0)
+    assert np.all(np.diff(t["cdf"], axis=1) >= 0)
+    t2 = scratch_lobes.table_lobes(brdf, slices=16)
+    t3 = scratch_lobes.table_lobes(brdf, slices=16)       # from the cache
+    np.testing.assert_allclose(t2["w_0"], t3["w_0"], rtol=1e-6)
+
+
+@pytest.mark.parametrize("call, needle", [
+    (lambda: lt.bin_atoms([0.1], 3), "M must be an integer >= 4"),
+    (lambda: lt.bin_atoms([2.0], 16), "phi_o must be"),
+    (lambda: lt.fit_bins(-np.ones((2, 8)), np.zeros(2)), "rows must be finite and >= 0"),
+    (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), sweeps=-1), "sweeps"),
+])
+def test_bad_input(call, needle):
+    with pytest.raises(ValueError, match=needle):
+        call()
