@@ -7,7 +7,7 @@ in one process, median of --repeats; ratios are against the SVM anisotropic GGX 
   osl N layers      the generated OSL shader, N = 1, 4, 16, 32 layers (hash-picked layer and lobe)
   osl all-lobes     4 layers with every lobe summed (lobe_mode="all"): the cost of K without picking
   osl table lobes   4 layers, tabulated-tilt lobes (lobe_shape="table": binary search + one closure)
-  svm N layers      the node-group path (every lobe of a slice summed), N = 1, 4
+  svm N layers      the node-group path (every lobe of a slice summed), N = 1, 4; and 4 layers with table lobes
   K = 1..8          4 layers, OSL, varying the lobe budget (render cost vs fit error, with bench.lobe_fit)
   skip              the baseline scene rendered with the add-on registered vs not: ratio must be ~1
 
@@ -77,6 +77,7 @@ def main(argv: list[str]) -> int:
     setups += [("osl 4 layers, all lobes", scratch(4, lobe_mode="all"), True)]
     setups += [("osl 4 layers, table lobes", scratch(4, shape="table"), True)]
     setups += [(f"svm {n} layers", scratch(n, backend="svm"), False) for n in (1, 4)]
+    setups += [("svm 4 layers, table lobes", scratch(4, backend="svm", shape="table"), False)]
     if not a.quick:
         setups += [(f"osl 4 layers, K={k}", scratch(4, lobes=k), True) for k in (1, 2, 4)]
     # skip: the baseline scene with the add-on registered (nothing of ours in the scene)
@@ -117,7 +118,7 @@ def main(argv: list[str]) -> int:
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
     osl_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("osl") and n.endswith("layers")]
     ax.plot([n for n, _ in osl_rows], [r for _, r in osl_rows], "o-", label="OSL (picked layer + lobe)")
-    svm_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("svm")]
+    svm_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("svm") and n.endswith("layers")]
     ax.plot([n for n, _ in svm_rows], [r for _, r in svm_rows], "s-", label="SVM node group")
     ax.axhline(1.0, color="grey", lw=0.8)
     ax.axhline(1.3, color="red", lw=0.8, ls="--", label="target at 4 layers")

@@ -13,9 +13,10 @@ Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
   per lobe) read with Closest interpolation; the φo slice is picked stochastically between the
   two nearest rows, as in OSL; jittered (box) lobes share one tilt offset per sample (the OSL
   path jitters only the picked lobe: the same expectation);
-- it always uses fitted lobes: the OSL default, tabulated-tilt lobes (``precompute.lobe_table``),
-  samples a per-slice CDF for every closure, which an image lookup per closure cannot do.  Image
-  means vs OSL table lobes: 0.1-0.7 % (quartic, gold), 1.3-1.5 % (V-groove, gold).
+- tabulated-tilt lobes (``precompute.lobe_table``, the default) are one Glossy node: the bin is
+  found by a binary search of log2 M Closest lookups in a packed CDF image (M a power of two), the
+  aim inside the bin with the same random number, weights from a second image; dense scratches:
+  image means equal to the OSL table lobes within noise (0.2-0.4 %).
 """
 from __future__ import annotations
 
@@ -140,8 +141,8 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
 
     h_slice, h_layer = noise((12.9898, 78.233, 37.719)), noise((93.989, 67.345, 24.113))
     # tilt jitter (stochastic box lobes): one offset in [-1, 1) per sample, scaled per lobe
-    jittered = any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
-                   for e in (lobe_data["m"], lobe_data["0"]))
+    jittered = "cdf" not in lobe_data and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
+                                              for e in (lobe_data["m"], lobe_data["0"]))
     h_jit = g.math("SUBTRACT", g.math("MULTIPLY", noise((57.193, 29.917, 64.433)), 2.0), 1.0) if jittered else None
 
     if layers is None:
@@ -180,13 +181,31 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     theta_o = g.math("ARCSINE", g.math("MINIMUM", g.math("MAXIMUM", g.vmath("DOT_PRODUCT", wo, u), -1.0), 1.0))
     phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
     x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
-    S = lobe_data["m"]["weights"].shape[0]
+    table = "cdf" in lobe_data
+    S = lobe_data["cdf"].shape[0] if table else lobe_data["m"]["weights"].shape[0]
     xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
     s0 = g.math("FLOOR", xs)
     s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
     s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
     row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
 
+    if table:
+        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, noise((39.346, 11.135, 83.155)), tint)
+    else:
+        scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
+    if layers is None:
+        return scratch
+    # eq. 4 with one picked layer: min(ᾱ, 1) * ρ_k + max(1 - ᾱ, 0) * ρ_b  ==  Mix(fac = min(ᾱ, 1), base, ρ_k)
+    mixs = g.node("ShaderNodeMixShader")
+    g._set(mixs.inputs["Fac"], g.math("MINIMUM", alpha_sum, 1.0))
+    if base_socket is not None:
+        tree.links.new(base_socket, mixs.inputs[1])
+    tree.links.new(scratch, mixs.inputs[2])
+    return mixs.outputs[0]
+
+
+def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
+    """Every fitted lobe of the slice in ``row`` as a Glossy node (eq. 2 per lobe); returns their sum."""
     scratch = None
     for key, use_r_m in (("m", True), ("0", False)):
         entry = lobe_data[key]
@@ -223,12 +242,98 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
             g._set(glossy.inputs["Normal"], n_l)
             g._set(glossy.inputs["Tangent"], u)
             scratch = g.add_shader(scratch, glossy.outputs[0])
-    if layers is None:
-        return scratch
-    # eq. 4 with one picked layer: min(ᾱ, 1) * ρ_k + max(1 - ᾱ, 0) * ρ_b  ==  Mix(fac = min(ᾱ, 1), base, ρ_k)
-    mixs = g.node("ShaderNodeMixShader")
-    g._set(mixs.inputs["Fac"], g.math("MINIMUM", alpha_sum, 1.0))
-    if base_socket is not None:
-        tree.links.new(base_socket, mixs.inputs[1])
-    tree.links.new(scratch, mixs.inputs[2])
-    return mixs.outputs[0]
+    return scratch
+
+
+def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
+    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom)."""
+    rows, cols = arr.shape[:2]
+    img = bpy.data.images.get(img_name)
+    if img is not None and tuple(img.size) != (cols, rows):
+        bpy.data.images.remove(img)
+        img = None
+    if img is None:
+        img = bpy.data.images.new(img_name, width=cols, height=rows, alpha=True, float_buffer=True, is_data=True)
+    img.colorspace_settings.is_data = True
+    img.alpha_mode = "CHANNEL_PACKED"
+    img.pixels.foreach_set(np.ascontiguousarray(arr, np.float32).reshape(-1))
+    img.file_format = "OPEN_EXR"
+    img.pack()
+    return img
+
+
+def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types.Image]:
+    """Packed images of tabulated-tilt lobes (``precompute.scratch_lobes.table_lobes``), rows = φo slices:
+    C [S, M+1] (R = the bin-picking CDF, G = its total P) and B [S, M] (RGB = w^0_b, A = w^m_b; lossless:
+    RGB = 0) plus, in C's B channel of the first M columns, γ of each bin."""
+    cdf = np.asarray(lobe_data["cdf"], np.float64)
+    S, M1 = cdf.shape
+    M = M1 - 1
+    c = np.zeros((S, M1, 4))
+    c[..., 0] = cdf
+    c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
+    c[:, :M, 2] = lobe_data["gamma"]
+    b = np.zeros((S, M, 4))
+    b[..., 3] = lobe_data["w_m"]
+    if lobe_data.get("w_0") is not None:
+        b[..., :3] = lobe_data["w_0"]
+    return _data_image(f"{name}.C", c), _data_image(f"{name}.B", b)
+
+
+def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
+    """One tabulated-tilt lobe (``precompute.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
+    binary search of h in the slice's CDF (log2 M image lookups), aim φi inside the picked bin, a
+    narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b (eq. 2)."""
+    img_c, img_b = table_images(name, lobe_data)
+    M = lobe_data["cdf"].shape[1] - 1
+    if M & (M - 1):
+        raise ValueError(f"table lobes need a power-of-two table size M; got {M}")
+    lossless = lobe_data.get("w_0") is None
+
+    def fetch(img, col, n_cols):
+        tex = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        g._set(tex.inputs["Vector"], g.combine(g.math("DIVIDE", g.math("ADD", col, 0.5), float(n_cols)), row))
+        return tex
+
+    lo, hi = 0.0, float(M)
+    for _ in range(int(math.log2(M))):  # hi - lo halves every step: M = 2^L
+        mid = g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", lo, hi), 0.5))
+        # cdf[mid] <= h (the R channel: a Color socket into a Math node would be converted to grey)
+        go = g.math("LESS_THAN", g.separate(fetch(img_c, mid, M + 1).outputs["Color"])[0], g.math("ADD", h, 1e-12))
+        lo = g.math("ADD", lo, g.math("MULTIPLY", go, g.math("SUBTRACT", mid, lo)))
+        hi = g.math("ADD", hi, g.math("MULTIPLY", g.math("SUBTRACT", 1.0, go), g.math("SUBTRACT", mid, hi)))
+    c0 = fetch(img_c, lo, M + 1)
+    c1 = fetch(img_c, g.math("ADD", lo, 1.0), M + 1)
+    c0r, P, gamma = g.separate(c0.outputs["Color"])
+    c1r = g.separate(c1.outputs["Color"])[0]
+    fr = g.math("MINIMUM", g.math("MAXIMUM", g.math("DIVIDE", g.math("SUBTRACT", h, c0r),
+                                                    g.math("MAXIMUM", g.math("SUBTRACT", c1r, c0r), 1e-12)), 0.0), 1.0)
+    phi_i = g.math("ADD", g.math("MULTIPLY", g.math("ADD", lo, fr), _PI / M), -_PI / 2)
+    phi_s = g.math("ADD", g.math("MULTIPLY", s, _PI / S), -_PI / 2 + 0.5 * _PI / S)
+    tilt = g.math("MULTIPLY", g.math("ADD", phi_i, phi_s), 0.5)
+    n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
+                                      g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
+    bin_ = fetch(img_b, lo, M)
+    wm = bin_.outputs["Alpha"]
+    if lossless:
+        colour = g.combine(P, P, P)            # W_b P / p_b with W_b = p_b = w^m_b
+    else:
+        w0 = bin_.outputs["Color"]
+        r = g.math("POWER", x, gamma)
+        W = g.vmath("ADD", g.vmath("SCALE", w0, scale=g.math("SUBTRACT", 1.0, r)),
+                    g.combine(*(g.math("MULTIPLY", r, wm),) * 3))
+        w0s = g.separate(w0)
+        p = g.math("ADD", wm, g.math("MULTIPLY", g.math("ADD", g.math("ADD", w0s[0], w0s[1]), w0s[2]), 1.0 / 3.0))
+        colour = g.vmath("SCALE", W, scale=g.math("DIVIDE", P, g.math("MAXIMUM", p, 1e-30)))
+    if tuple(tint) != (1.0, 1.0, 1.0):
+        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+    # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
+    ax = float(lobe_data["alpha_x"])
+    ay = max(float(lobe_data["alpha_y"]), ax)
+    glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+    g._set(glossy.inputs["Color"], colour)
+    g._set(glossy.inputs["Roughness"], (ax * ay) ** 0.25)
+    g._set(glossy.inputs["Anisotropy"], float(np.clip(1.0 - np.sqrt(ax / ay), 0.0, 0.99)))
+    g._set(glossy.inputs["Normal"], n_l)
+    g._set(glossy.inputs["Tangent"], u)
+    return glossy.outputs[0]

@@ -42,11 +42,11 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
                   width, density, seed; lengths in UV units) or a LayerParams
       lobes       K, at most this many fitted tilted GGX lobes per φo slice (1..16, default 8;
                   lobe_shape "fit"/"box" and the SVM backend)
-      lobe_shape  "table" (default with the OSL backend: tabulated-tilt lobes, ``precompute.lobe_table``:
-                  the slice sampled bin by bin by one narrow lobe, < 0.1 % rel. L1 on quartics, no fit),
-                  "fit" (default with backend "svm": <= K fitted tilted lobes, smooth, 5-11 % on quartics)
-                  or "box" (fitted lobes with a tilt jitter each: the shader draws the tilt in
-                  [t - j, t + j] per sample; closer fits of round profiles, slower fit)
+      lobe_shape  "table" (default: tabulated-tilt lobes, ``precompute.lobe_table``: the slice sampled
+                  bin by bin by one narrow lobe, < 0.1 % rel. L1 on quartics, no fit; OSL and SVM),
+                  "fit" (<= K fitted tilted lobes, smooth, 5-11 % on quartics, a little less noise
+                  under small lights) or "box" (fitted lobes with a tilt jitter each: the shader draws
+                  the tilt in [t - j, t + j] per sample; closer fits of round profiles, slower fit)
       box_lobes   True = lobe_shape "box" (kept for scripts written before lobe_shape)
       mode        "lobes" (the product path, light sampling kept) or "reference" (validation: the
                   exact table through ray_portal_bsdf; no NEE and lamps are not seen, use world light)

@@ -56,7 +56,7 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
                ("box", "Box", "Fitted lobes with a tilt jitter each (stochastic box lobes): closer fit of "
                               "round profiles, slower fit"),
                ("table", "Table", "Tabulated-tilt lobes: the table sampled bin by bin, exact (< 1 %), no fit; "
-                                  "OSL only, a little more noise under small lights")])
+                                  "a little more noise under small lights")])
     use_layers: bpy.props.BoolProperty(name="Scratch Layers", default=True,
                                        description="Off: scratches everywhere (densely brushed)")
     n_layers: bpy.props.IntProperty(name="Layers", default=4, min=1, max=64)

@@ -28,7 +28,7 @@ BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
 MODES = ("lobes", "reference")
 BACKENDS = ("osl", "svm")
 #: "fit": <= K fitted tilted lobes; "box": fitted lobes with a tilt jitter each; "table": tabulated-tilt
-#: lobes (precompute.lobe_table: the slice sampled bin by bin, exact, no fit; OSL only)
+#: lobes (precompute.lobe_table: the slice sampled bin by bin, exact, no fit; the default)
 LOBE_SHAPES = ("fit", "box", "table")
 
 
@@ -47,7 +47,7 @@ class ScratchParams:
     tint: tuple
     diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
     backend: str = "osl"    # "osl" (CPU/OptiX, footprint-filtered α, hash-picked lobes) or "svm" (GPU/EEVEE)
-    lobe_shape: str = "table"  # one of LOBE_SHAPES (validate: "table" on OSL, "fit" on SVM unless given)
+    lobe_shape: str = "table"  # one of LOBE_SHAPES
 
     @property
     def box_lobes(self) -> bool:
@@ -127,14 +127,12 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError("mode must be 'lobes' with backend 'svm' (the reference mode needs OSL)")
     if not isinstance(box_lobes, bool):
         raise ValueError(f"box_lobes must be True or False, got {box_lobes!r}")
-    if lobe_shape is None:  # default: exact table lobes on OSL; the SVM group can only read fitted lobes
-        lobe_shape = "box" if box_lobes else ("table" if backend == "osl" else "fit")
+    if lobe_shape is None:  # default: the exact table lobes, on both backends
+        lobe_shape = "box" if box_lobes else "table"
     if lobe_shape not in LOBE_SHAPES:
         raise ValueError(f"lobe_shape must be one of {', '.join(LOBE_SHAPES)}; got {lobe_shape!r}")
     if box_lobes and lobe_shape != "box":
         raise ValueError(f"box_lobes=True contradicts lobe_shape={lobe_shape!r} (use lobe_shape='box')")
-    if backend == "svm" and lobe_shape == "table":
-        raise ValueError("lobe_shape 'table' needs backend 'osl' (the SVM group reads fitted lobes from images)")
     rgba = materials.check_color("tint", tint)
     if diffuse is not None and diffuse != "wood":
         diffuse = materials.check_color("diffuse", diffuse)[:3]

@@ -95,7 +95,7 @@ def test_quartic_meets_issue_target_with_12_lobes(quartic_table):
 
 @pytest.mark.xfail(strict=True, reason="<= 8 *fitted* lobes do not reach issue #4's 3 % (p95 rel. L1) on quartics "
                    "(box lobes: p95 4.9 % here; they meet it on the circular profile); the tabulated-tilt lobes, "
-                   "the OSL default, do (tests/test_lobe_table.py)")
+                   "the default, do (tests/test_lobe_table.py)")
 @pytest.mark.parametrize("jitter", [False, True], ids=["plain", "jitter"])
 def test_quartic_meets_issue_target(quartic_table, jitter):
     r = lf.fit_table(quartic_table, K=8, jitter=jitter)

@@ -346,10 +346,9 @@ def test_table_lobes_parameters(addon):
     assert "TB_W0" not in src and "TB_GAM" not in src     # lossless: no rho_0 / gamma arrays
     assert "pick_lobe" not in src and "h_jit" not in src
     assert sm.validate(profile=prof, box_lobes=True).lobe_shape == "box"
-    assert sm.validate(profile=prof).lobe_shape == "table"                  # OSL default: exact
-    assert sm.validate(profile=prof, backend="svm").lobe_shape == "fit"     # SVM: fitted lobes
+    assert sm.validate(profile=prof).lobe_shape == "table"                  # the default: exact
+    assert sm.validate(profile=prof, backend="svm").lobe_shape == "table"
     for bad, needle in [(dict(lobe_shape="bumpy"), "lobe_shape must be one of fit, box, table"),
-                        (dict(lobe_shape="table", backend="svm"), "lobe_shape 'table' needs backend 'osl'"),
                         (dict(lobe_shape="fit", box_lobes=True), "contradicts")]:
         with pytest.raises(ValueError, match=needle):
             sm.validate(profile=prof, **bad)

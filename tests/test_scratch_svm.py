@@ -9,9 +9,11 @@ from test_scratch_material import LAYERS16, _material, _profiles, _scene
 pytestmark = [pytest.mark.bpy, pytest.mark.render]
 
 
+@pytest.mark.parametrize("shape", ["fit", "table"])
 @pytest.mark.parametrize("layers", [None, LAYERS16], ids=["dense", "16-layers"])
-def test_svm_white_furnace(addon, scene, render_dir, layers):
-    mat = _material(addon, profile=_profiles(addon)["quartic"], fresnel=None, layers=layers, base="mirror", backend="svm")
+def test_svm_white_furnace(addon, scene, render_dir, layers, shape):
+    mat = _material(addon, profile=_profiles(addon)["quartic"], fresnel=None, layers=layers, base="mirror", backend="svm",
+                    lobe_shape=shape)
     assert not any(n.bl_idname == "ShaderNodeScript" for n in mat.node_tree.nodes)  # no OSL anywhere
     _scene(addon, scene, mat, world="uniform")
     scene.cycles.shading_system = False
@@ -19,14 +21,16 @@ def test_svm_white_furnace(addon, scene, render_dir, layers):
     assert abs(img.mean() - 1.0) < 0.02, img.mean()
 
 
-@pytest.mark.parametrize("profile, osl_shape", [("v_groove", "fit"), ("v_groove", "table"), ("quartic", "table")])
-def test_svm_matches_osl_path(addon, scene, render_dir, profile, osl_shape):
-    # osl_shape "table" is the OSL default: the SVM group (fitted lobes) against the exact table lobes
+@pytest.mark.parametrize("profile, osl_shape, svm_shape", [
+    ("v_groove", "fit", "fit"), ("v_groove", "table", "table"), ("quartic", "table", "table"),
+    ("quartic", "table", "fit")])
+def test_svm_matches_osl_path(addon, scene, render_dir, profile, osl_shape, svm_shape):
+    # "table" is the default of both paths; the last case: SVM fitted lobes against OSL table lobes
     prof = _profiles(addon)[profile]
     means = {}
     for backend in ("osl", "svm"):
         mat = _material(addon, f"S_{backend}", profile=prof, fresnel="gold", layers=LAYERS16, base="mirror", backend=backend,
-                        lobe_shape=osl_shape if backend == "osl" else "fit")
+                        lobe_shape=osl_shape if backend == "osl" else svm_shape)
         if backend == "osl":
             _scene(addon, scene, mat, world="studio", samples=64)
         else:
@@ -35,7 +39,7 @@ def test_svm_matches_osl_path(addon, scene, render_dir, profile, osl_shape):
         img, _ = addon.render.render_array(scene, str(render_dir), backend)
         means[backend] = img.mean(axis=(0, 1))
     rel = np.abs(means["svm"] - means["osl"]) / means["osl"]
-    print(f"SVM (fitted lobes) vs OSL ({osl_shape} lobes), {profile}/gold: mean rel. diff per RGB = {rel}")
+    print(f"SVM ({svm_shape} lobes) vs OSL ({osl_shape} lobes), {profile}/gold: mean rel. diff per RGB = {rel}")
     # measured 0.7-1.2 % (binary α with pixel sampling vs footprint-filtered α; fitted vs table lobes
     # adds little to the image mean); noise ~0.5 %
     assert rel.max() < 0.03, rel
@@ -64,3 +68,16 @@ def test_svm_box_lobes_white_furnace(addon, scene, render_dir):
     scene.cycles.shading_system = False
     img, _ = addon.render.render_array(scene, str(render_dir))
     assert abs(img.mean() - 1.0) < 0.02, img.mean()
+
+
+def test_svm_table_lobes_are_two_packed_images_and_one_closure(addon, scene):
+    mat = _material(addon, profile=_profiles(addon)["quartic"], fresnel="iron", layers=None, backend="svm",
+                    lobe_shape="table")
+    nodes = mat.node_tree.nodes
+    images = {n.image for n in nodes if n.bl_idname == "ShaderNodeTexImage"}
+    assert len(images) == 2  # C (CDF, total, gamma) and B (bin weights)
+    for img in images:
+        assert img.packed_file is not None and img.colorspace_settings.is_data and img.is_float
+    assert sum(n.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic") for n in nodes) == 1
+    # log2(M) binary-search fetches + 2 CDF + 1 bin fetch (M = 64)
+    assert sum(n.bl_idname == "ShaderNodeTexImage" for n in nodes) == 6 + 3
