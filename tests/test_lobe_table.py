@@ -109,3 +109,26 @@ def test_lossy_tables_and_cache(tmp_path, monkeypatch):
 def test_bad_input(call, needle):
     with pytest.raises(ValueError, match=needle):
         call()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sampled_from([4, 8, 16, 64]),
+       st.lists(st.sampled_from([-1.5707963, -1.5707, -1.3, -0.2, 0.0, 0.9, 1.5707, 1.5707963]), min_size=1, max_size=4),
+       st.floats(-12, 6), st.floats(0.0, 0.99), st.integers(0, 2**31 - 1))
+def test_fit_bins_fuzz_grazing_views_sparse_and_extreme_rows(Mb, phis, log_scale, sparsity, seed):
+    """Grazing views (|phi_o| -> pi/2), rows that are empty, one-bin or span 18 orders of magnitude:
+    finite non-negative weights, a finite error in [0, 1], and never more energy than the table."""
+    rng = np.random.default_rng(seed)
+    phi = np.array(phis)
+    rows = rng.random((phi.size, Mb)) * (rng.random((phi.size, Mb)) > sparsity) * 10.0 ** log_scale
+    rows[0, :] = 0.0 if seed % 3 == 0 else rows[0, :]           # an all-zero slice now and then
+    w, err, A = lt.fit_bins(rows, phi)
+    assert np.all(np.isfinite(w)) and np.all(w >= 0)
+    assert np.all(np.isfinite(err)) and np.all(err >= 0) and np.all(err <= 1.0 + 1e-9)
+    e = lf.phi_bin_edges(Mb)
+    albedo = rows @ np.diff(np.sin(e))
+    rendered = (lt.model(w, A) * np.diff(e)).sum(1)
+    assert np.all(rendered <= albedo * (1 + 1e-9) + 1e-300)
+    cdf, total = lt.proposal(w)
+    assert np.all(np.isfinite(cdf)) and np.all(np.diff(cdf, axis=1) >= 0)
+    assert np.all((cdf[:, -1] == 1.0) | (total == 0))
