@@ -132,3 +132,14 @@ def test_fit_bins_fuzz_grazing_views_sparse_and_extreme_rows(Mb, phis, log_scale
     cdf, total = lt.proposal(w)
     assert np.all(np.isfinite(cdf)) and np.all(np.diff(cdf, axis=1) >= 0)
     assert np.all((cdf[:, -1] == 1.0) | (total == 0))
+
+
+@pytest.mark.parametrize("Mb, phis", [(16, [-1.5, 0.0, 1.2]), (64, [-0.3, 1.5707])])
+def test_banded_atoms_equal_the_full_range_evaluation(Mb, phis):
+    full = lt.bin_atoms(phis, Mb, band=None)
+    banded = lt.bin_atoms(phis, Mb)
+    inside = banded != 0
+    np.testing.assert_allclose(banded[inside], full[inside], rtol=1e-12, atol=0)
+    assert np.abs(banded - full).sum() <= 1e-4 * full.sum()        # the dropped GGX tails
+    with pytest.raises(ValueError, match="band"):
+        lt.bin_atoms(phis, Mb, band=0)
