@@ -105,8 +105,12 @@ def fit_bins(rows, phi_o, alpha_y=None, alpha_x: float = 1e-4, sweeps: int = 30,
         raise ValueError("rows must be finite and >= 0")
     if not (isinstance(sweeps, (int, np.integer)) and 0 <= sweeps <= 1000):
         raise ValueError(f"sweeps must be an integer in [0, 1000]; got {sweeps!r}")
+    if np.shape(np.atleast_1d(phi_o)) != (S,):
+        raise ValueError(f"phi_o must hold one view angle per row: shape ({S},); got {np.shape(phi_o)}")
     e = phi_bin_edges(M)
-    A = bin_atoms(phi_o, M, alpha_y, alpha_x) if atoms is None else atoms
+    A = bin_atoms(phi_o, M, alpha_y, alpha_x) if atoms is None else np.asarray(atoms, float)
+    if A.shape != (S, M, M):
+        raise ValueError(f"atoms must have shape ({S}, {M}, {M}) (bin_atoms of these rows); got {A.shape}")
     f = r3 * (np.diff(np.sin(e)) / np.diff(e))[None, :, None]                         # [S, M, C]
     diag = np.einsum("sbb->sb", A)                                                     # [S, M]
     # bins no lobe can reach (the aim's tilted normal below the view) stay empty

@@ -105,6 +105,8 @@ def test_lossy_tables_and_cache(tmp_path, monkeypatch):
     (lambda: lt.bin_atoms([2.0], 16), "phi_o must be"),
     (lambda: lt.fit_bins(-np.ones((2, 8)), np.zeros(2)), "rows must be finite and >= 0"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), sweeps=-1), "sweeps"),
+    (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(3)), "one view angle per row"),
+    (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), atoms=np.ones((2, 8, 4))), "atoms must have shape"),
 ])
 def test_bad_input(call, needle):
     with pytest.raises(ValueError, match=needle):
