@@ -4,11 +4,12 @@ All set-ups render the demo scene (torus, studio world, small area light) at equ
 in one process, median of --repeats; ratios are against the SVM anisotropic GGX in the same run.
 
   baseline          node_groups/brushed.py (SVM Glossy, GGX, anisotropic)
-  osl N layers      the generated OSL shader, N = 1, 4, 16, 32 layers (hash-picked layer and lobe)
-  osl all-lobes     4 layers with every lobe summed (lobe_mode="all"): the cost of K without picking
-  osl table lobes   4 layers, tabulated-tilt lobes (lobe_shape="table": binary search + one closure)
-  svm N layers      the node-group path (every lobe of a slice summed), N = 1, 4; and 4 layers with table lobes
-  K = 1..8          4 layers, OSL, varying the lobe budget (render cost vs fit error, with bench.lobe_fit)
+  osl N layers      the generated OSL shader with the default table lobes, N = 1, 4, 16, 32 layers
+                    (hash-picked layer, one sampled table lobe); "fitted lobes": K = 8 fitted lobes
+  fitted, all       4 layers, K = 8 fitted lobes all summed (lobe_mode="all"): the cost of K without picking
+  svm N layers      the node-group path (table lobes: log2 M lookups, one Glossy), N = 1, 4; and 4 layers
+                    with K = 8 fitted lobes (every lobe of a slice summed)
+  fitted K = 1..4   4 layers, OSL, varying the fitted-lobe budget (render cost vs fit error, bench.lobe_fit)
   skip              the baseline scene rendered with the add-on registered vs not: ratio must be ~1
 
     python -m bench scratch_cost [--quick] [--res 192 128] [--spp 32] [--repeats 3]
@@ -60,7 +61,7 @@ def main(argv: list[str]) -> int:
     addon, materials, render, sm = _modules()
     tmp = tempfile.mkdtemp(prefix="bench_scratch_cost_")
 
-    def scratch(n_layers, backend="osl", lobes=8, shape="fit", **spec):
+    def scratch(n_layers, backend="osl", lobes=8, shape="table", **spec):
         layers = None if n_layers == 0 else dict(n_layers=n_layers, theta_deg=360, length=0.3, width=0.005, density=0.2)
 
         def make():
@@ -74,12 +75,12 @@ def main(argv: list[str]) -> int:
     setups = [("baseline (SVM aniso GGX)", baseline, False)]
     layer_counts = (1, 4) if a.quick else (1, 4, 16, 32)
     setups += [(f"osl {n} layers", scratch(n), True) for n in layer_counts]
-    setups += [("osl 4 layers, all lobes", scratch(4, lobe_mode="all"), True)]
-    setups += [("osl 4 layers, table lobes", scratch(4, shape="table"), True)]
+    setups += [("osl 4 layers, fitted lobes", scratch(4, shape="fit"), True)]
+    setups += [("osl 4 layers, fitted, all lobes", scratch(4, shape="fit", lobe_mode="all"), True)]
     setups += [(f"svm {n} layers", scratch(n, backend="svm"), False) for n in (1, 4)]
-    setups += [("svm 4 layers, table lobes", scratch(4, backend="svm", shape="table"), False)]
+    setups += [("svm 4 layers, fitted lobes", scratch(4, backend="svm", shape="fit"), False)]
     if not a.quick:
-        setups += [(f"osl 4 layers, K={k}", scratch(4, lobes=k), True) for k in (1, 2, 4)]
+        setups += [(f"osl 4 layers, fitted K={k}", scratch(4, lobes=k, shape="fit"), True) for k in (1, 2, 4)]
     # skip: the baseline scene with the add-on registered (nothing of ours in the scene)
     setups += [("baseline, add-on registered", baseline, False)]
 
@@ -117,9 +118,9 @@ def main(argv: list[str]) -> int:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
     osl_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("osl") and n.endswith("layers")]
-    ax.plot([n for n, _ in osl_rows], [r for _, r in osl_rows], "o-", label="OSL (picked layer + lobe)")
+    ax.plot([n for n, _ in osl_rows], [r for _, r in osl_rows], "o-", label="OSL (picked layer, table lobe)")
     svm_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("svm") and n.endswith("layers")]
-    ax.plot([n for n, _ in svm_rows], [r for _, r in svm_rows], "s-", label="SVM node group")
+    ax.plot([n for n, _ in svm_rows], [r for _, r in svm_rows], "s-", label="SVM node group (table lobe)")
     ax.axhline(1.0, color="grey", lw=0.8)
     ax.axhline(1.3, color="red", lw=0.8, ls="--", label="target at 4 layers")
     ax.set_xscale("log", base=2)
