@@ -107,6 +107,10 @@ def test_lossy_tables_and_cache(tmp_path, monkeypatch):
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), sweeps=-1), "sweeps"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(3)), "one view angle per row"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), atoms=np.ones((2, 8, 4))), "atoms must have shape"),
+    (lambda: cycles_ggx.cone_collapse_binned_jittered_windows(0.0, np.array([[0.1, 0.0]]), 0.0, 1e-3, 0.01),
+     "window_edges"),
+    (lambda: cycles_ggx.cone_collapse_binned_jittered_windows(0.0, np.array([[0.0, 0.1]]), 0.0, 1e-3, -0.01),
+     "jitter"),
 ])
 def test_bad_input(call, needle):
     with pytest.raises(ValueError, match=needle):
