@@ -100,23 +100,8 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
     rough = (alpha_x * ay) ** 0.25
     aniso = np.clip(1.0 - np.sqrt(alpha_x / ay), 0.0, 0.99)
     p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
-    out = []
     jit = np.asarray(entry.get("jitters", np.zeros((S, K))), np.float32)[..., None]
-    for suffix, arr in (("W", np.concatenate([w, jit], -1)), ("P", p)):
-        img_name = f"{name}.{suffix}"
-        img = bpy.data.images.get(img_name)
-        if img is not None and tuple(img.size) != (K, S):
-            bpy.data.images.remove(img)
-            img = None
-        if img is None:
-            img = bpy.data.images.new(img_name, width=K, height=S, alpha=True, float_buffer=True, is_data=True)
-        img.colorspace_settings.is_data = True
-        img.alpha_mode = "CHANNEL_PACKED"
-        img.pixels.foreach_set(arr.reshape(-1))
-        img.file_format = "OPEN_EXR"
-        img.pack()
-        out.append(img)
-    return out[0], out[1]
+    return _data_image(f"{name}.W", np.concatenate([w, jit], -1)), _data_image(f"{name}.P", p)
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
