@@ -112,7 +112,6 @@ def main(argv) -> int:
     ax.set_xlabel("render time (s)")
     ax.set_ylabel("rel. RMSE vs truth")
     ax.legend(title="lobe shape")
-    fig.tight_layout()
     ax.set_title(f"scene: {a.scene}")
     fig.tight_layout()
     fig.savefig(out_path(f"lobe_shapes_{a.scene}.png"), dpi=120)

@@ -147,8 +147,14 @@ def sample_bins(cdf, s, h):
     sampled aim is phi_i = e_b + frac pi/M and the tilt (phi_i + phi_o_s) / 2.
     """
     cdf = np.asarray(cdf, float)
+    if cdf.ndim != 2 or cdf.shape[1] < 2:
+        raise ValueError(f"cdf must be [S, M+1] with M >= 1; got shape {cdf.shape}")
     M = cdf.shape[1] - 1
     s, h = np.broadcast_arrays(np.asarray(s, int), np.asarray(h, float))
+    if np.any((s < 0) | (s >= cdf.shape[0])):
+        raise ValueError(f"s must be slice indices in [0, {cdf.shape[0] - 1}]")
+    if not np.all((h >= 0) & (h < 1)):
+        raise ValueError("h must be uniform random numbers in [0, 1)")
     lo = np.zeros(s.shape, int)
     hi = np.full(s.shape, M)
     for _ in range(int(np.ceil(np.log2(M))) + 1):        # the shader's loop: while (hi - lo > 1)

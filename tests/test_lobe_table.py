@@ -106,6 +106,8 @@ def test_lossy_tables_and_cache(tmp_path, monkeypatch):
     (lambda: lt.fit_bins(-np.ones((2, 8)), np.zeros(2)), "rows must be finite and >= 0"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), sweeps=-1), "sweeps"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(3)), "one view angle per row"),
+    (lambda: lt.sample_bins(np.array([[0.0, 1.0]]), [0], [1.0]), "h must be"),
+    (lambda: lt.sample_bins(np.array([[0.0, 1.0]]), [1], [0.5]), "s must be slice indices"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), atoms=np.ones((2, 8, 4))), "atoms must have shape"),
     (lambda: cycles_ggx.cone_collapse_binned_jittered_windows(0.0, np.array([[0.1, 0.0]]), 0.0, 1e-3, 0.01),
      "window_edges"),
