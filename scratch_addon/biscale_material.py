@@ -25,7 +25,7 @@ import os
 import bpy
 import numpy as np
 
-from . import _deps, osl_compile
+from . import _deps, osl_compile, render_paths
 from .materials import new_material
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -138,25 +138,41 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     """Cycles material of a bi-scale effective BRDF.
 
     ``mode="fit"``: the fitted closure mixture ``fit`` (``precompute.biscale_fit.ClosureFit``) as SVM
-    nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups; works on GPU).
+    nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups; works on GPU and in EEVEE).
     ``mode="reference"``: the exact table of ``brdf`` (``precompute.biscale.EffectiveBRDF``)
-    importance-sampled by an INTERNAL OSL script node (``osl.biscale_reference``; needs the scene's
-    OSL backend, no light sampling: validation renders).  Tangent node (UV map) and UV Map node
-    wired in as for the scratch reference shader."""
+    importance-sampled by an INTERNAL OSL script node (``osl.biscale_reference``; no light sampling:
+    validation renders) where Cycles runs OSL on the CPU, and the fitted closures ``fit`` (fitted
+    here when None) everywhere else (Cycles SVM, GPU, EEVEE; see ``render_paths``).  Tangent node (UV map) and UV Map
+    node wired in as for the scratch reference shader."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
-    if mode == "reference":
-        if brdf is None:
-            raise ValueError("brdf: the reference mode needs the EffectiveBRDF table")
-        return _make_reference_material(brdf, name, fit)
-    if fit is None:
+    if mode == "reference" and brdf is None:
+        raise ValueError("brdf: the reference mode needs the EffectiveBRDF table")
+    if fit is None and mode == "fit":
         raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale_fit.fit_closures)")
+    if fit is None:  # the reference mode's twin where OSL cannot run
+        fit = _deps.sibling("precompute.biscale_fit").fit_closures(brdf)
+    src = _deps.sibling("osl.biscale_reference").generate(brdf) if mode == "reference" else None  # ValueError first
+    mat = new_material(name)
+    try:
+        svm_surface = _fit_closures(mat.node_tree, fit, use_tilted)
+        osl_surface = None if src is None else _reference_script(mat, src)
+    except Exception:
+        bpy.data.materials.remove(mat)
+        raise
+    render_paths.link_surface(mat.node_tree, svm_surface, osl_surface, mat.node_tree.nodes["Material Output"])
+    mat.cycles.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
+    mat["scratch_addon_kind"] = "biscale"
+    mat["biscale_mode"] = mode
+    mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
+    mat["biscale_fit_psnr"] = float(fit.psnr)
+    return mat
+
+
+def _fit_closures(tree, fit, use_tilted: bool):
+    """Diffuse BSDF + one "Scratch: Bi-scale Lobe" group per fitted lobe, summed; returns the closure socket."""
     fitmod = _deps.sibling("precompute.biscale_fit")
     group = _deps.sibling("node_groups.biscale").ensure()
-    mat = new_material(name)
-    mat.cycles.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
-    tree = mat.node_tree
-    out = tree.nodes["Material Output"]
     diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
     diff.inputs["Color"].default_value = (*[float(c) for c in np.clip(fit.diffuse, 0, 1)], 1.0)
     diff.inputs["Roughness"].default_value = 0.0
@@ -178,49 +194,31 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
         tree.links.new(shader, add.inputs[0])
         tree.links.new(node.outputs["BSDF"], add.inputs[1])
         shader = add.outputs["Shader"]
-    tree.links.new(shader, out.inputs["Surface"])
-    mat["scratch_addon_kind"] = "biscale"
-    mat["biscale_mode"] = "fit"
-    mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
-    mat["biscale_fit_psnr"] = float(fit.psnr)
-    return mat
+    return shader
 
 
-def _make_reference_material(brdf, name, fit=None):
-    ref = _deps.sibling("osl.biscale_reference")
-    src = ref.generate(brdf)              # ValueError for unsupported tables, before any datablock exists
-    mat = new_material(name)
+def _reference_script(mat, src):
+    """The exact-table OSL script node (UV Map and Tangent wired in); returns its closure socket."""
     tree = mat.node_tree
-    out = tree.nodes["Material Output"]
-    try:
-        # before the node exists: assigning its script fires Cycles' update_script_node, which
-        # imports oslquery (a traceback in the log when OSL is on and oslquery not yet on sys.path)
-        osl_compile.ensure_oslquery()
-        script = osl_compile.script_node_from_source(tree, f"{mat.name}.biscale.osl", src)
-    except Exception:
-        bpy.data.materials.remove(mat)
-        raise
-    script.location = (0, 0)
+    # before the node exists: assigning its script fires Cycles' update_script_node, which
+    # imports oslquery (a traceback in the log when OSL is on and oslquery not yet on sys.path)
+    osl_compile.ensure_oslquery()
+    script = osl_compile.script_node_from_source(tree, f"{mat.name}.biscale.osl", src)
+    script.location = (0, 300)
     uv = tree.nodes.new("ShaderNodeUVMap")         # makes Cycles export the UV attributes
-    uv.location = (-400, 150)
+    uv.location = (-400, 450)
     tangent = tree.nodes.new("ShaderNodeTangent")
     tangent.direction_type = "UV_MAP"
-    tangent.location = (-400, -50)
+    tangent.location = (-400, 250)
     tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
-    tree.links.new(script.outputs["BSDF"], out.inputs["Surface"])
-    mat["scratch_addon_kind"] = "biscale"
-    mat["biscale_mode"] = "reference"
-    if fit is not None:
-        mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
-        mat["biscale_fit_psnr"] = float(fit.psnr)
-    return mat
+    return script.outputs["BSDF"]
 
 
 def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None, exr_dir: str | None = None,
          mode: str = "fit", **opts):
     """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials) as a material
     applied to ``target`` (if given): ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
-    the exact table importance-sampled in OSL (no fit is computed; the scene needs the OSL backend).
+    the exact table importance-sampled in OSL where Cycles runs OSL on the CPU, the fitted closures elsewhere.
     Returns (material, EffectiveBRDF, ClosureFit or None, info dict).  ``progress(fraction)`` is
     called between steps."""
     if mode not in MODES:
@@ -244,7 +242,7 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     step(0.3)
     brdf = tile.effective_brdf(materials)
     step(0.7)
-    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes) if mode == "fit" else None
+    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes)  # the reference mode's SVM / EEVEE twin too
     step(0.9)
     h = mesh_hash(V, F, M, P)
     exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
@@ -259,6 +257,6 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
         else:
             target.data.materials.append(mat)
     step(1.0)
-    info = {"reused_tile": reused, "rel_l1": None if fit is None else fit.rel_l1,
-            "psnr": None if fit is None else fit.psnr, "exr": exr, "materials": materials, "mode": mode}
+    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials,
+            "mode": mode}
     return mat, brdf, fit, info

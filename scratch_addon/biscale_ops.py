@@ -4,7 +4,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from . import _deps
+from . import _deps, ui_utils
 from .ui_utils import progress
 
 
@@ -141,15 +141,9 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         reused = " (tile reused)" if info["reused_tile"] else ""
-        if fit is not None:
-            self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
-        else:
-            if not context.scene.cycles.shading_system:
-                context.scene.cycles.shading_system = True
-                self.report({"WARNING"}, f"{mat.name}: reference mode needs OSL: turned on Cycles' Open Shading "
-                                         f"Language for this scene (CPU only){reused}")
-            else:
-                self.report({"INFO"}, f"{mat.name}: exact reference (OSL){reused}")
+        self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
+        if info["mode"] == "reference":
+            ui_utils.report_render_path(self, mat, context.scene)
         return {"FINISHED"}
 
 
@@ -168,8 +162,8 @@ class SCRATCH_PT_biscale(bpy.types.Panel):
         mat = context.material
         if mat is not None and mat.get("scratch_addon_kind") == "biscale":
             if mat.get("biscale_mode") == "reference":
-                layout.label(text="Exact reference (OSL, ray portal sampling)")
-            elif "biscale_fit_psnr" in mat:
+                layout.label(text="Exact reference (OSL, ray portal sampling); elsewhere the fitted closures")
+            if "biscale_fit_psnr" in mat:
                 layout.label(text=f"Fit: rel. L1 {mat.get('biscale_fit_rel_l1', 0):.3f}, "
                                   f"PSNR {mat.get('biscale_fit_psnr', 0):.1f} dB")
 

@@ -21,7 +21,7 @@ import math
 import bpy
 import numpy as np
 
-from . import _deps, materials, osl_compile
+from . import _deps, materials, osl_compile, render_paths
 
 scratch_set = _deps.sibling("precompute.scratch_set")
 layer_gen = _deps.sibling("osl.iridescent_layer")
@@ -216,14 +216,6 @@ def _lights_hash(specs) -> str:
 
 
 # ----------------------------------------------------------------------------- node tree
-def _output_node(tree):
-    outs = [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
-    if not outs:
-        raise ValueError("material has no Material Output node")
-    active = [n for n in outs if n.is_active_output]
-    return (active or outs)[0]
-
-
 def layer_node(material):
     """The layer's script node in ``material`` or None."""
     return material.node_tree.nodes.get(NODE_NAME) if material.node_tree else None
@@ -273,12 +265,13 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
     lights = lights_from_scene(scene or bpy.context.scene) if p["route"] == "lights" else []
     src = shader_source(scratches, lights=lights, **p)
     store_scratches(material, scratches)
-    tree = material.node_tree
-    out = _output_node(tree)
+    tree = materials.ensure_nodes(material)
+    out = render_paths.cycles_output(tree)
     node = layer_node(material)
     text_name = f"{material.name}.iridescence.osl"
     if node is None:
         prev = out.inputs["Surface"].links[0].from_socket if out.inputs["Surface"].is_linked else None
+        had_eevee = any(n.bl_idname == "ShaderNodeOutputMaterial" and n.target == "EEVEE" for n in tree.nodes)
         node = osl_compile.script_node_from_source(tree, text_name, src)
         node.name = node.label = NODE_NAME
         node.location = (out.location[0], out.location[1] + 250)
@@ -293,7 +286,10 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
         tree.links.new(tan.outputs["Tangent"], node.inputs["Tangent"])
         if prev is not None:
             tree.links.new(prev, node.inputs["Base"])
-        tree.links.new(node.outputs["BSDF"], out.inputs["Surface"])
+        # Cycles SVM (the default, GPU) and EEVEE cannot run the layer: they render its base
+        mix = render_paths.link_surface(tree, prev, node.outputs["BSDF"], out, eevee=not had_eevee)
+        node["scratch_switch"] = [n.name for n in render_paths.switch_nodes(mix)]
+        node["scratch_added_eevee_output"] = not had_eevee
     else:
         text = node.script or bpy.data.texts.new(text_name)
         text.clear()
@@ -301,6 +297,7 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
         node.script = text
         osl_compile.compile_script_node(node)
     material.cycles.use_bump_map_correction = False   # it rotates the tilted lobe normals back toward Ng
+    material["scratch_addon_iridescent_layer"] = True   # render_paths.describe: what SVM / EEVEE show
     if p["route"] == "lights":
         material.cycles.emission_sampling = "NONE"     # the layer's radiance is not a light source
     node["scratch_iridescence"] = json.dumps({**p, "segments": len(scratches), "lights": _lights_hash(lights)})
@@ -314,12 +311,22 @@ def remove_layer(material) -> bool:
         return False
     tree = material.node_tree
     base_src = node.inputs["Base"].links[0].from_socket if node.inputs["Base"].is_linked else None
-    targets = [lk.to_socket for lk in node.outputs["BSDF"].links]
+    switches = [tree.nodes[nm] for nm in node.get("scratch_switch", ()) if nm in tree.nodes]
+    mix = next((n for n in switches if n.bl_idname == "ShaderNodeMixShader"), None)
+    targets = [lk.to_socket for lk in (mix or node).outputs[0].links]
     text = node.script
+    if node.get("scratch_added_eevee_output"):
+        eevee = tree.nodes.get(render_paths.EEVEE_OUTPUT_NAME)
+        if eevee is not None:
+            tree.nodes.remove(eevee)
+        render_paths.cycles_output(tree).target = "ALL"
     for name in (_UV_NAME, _TAN_NAME):
         if name in tree.nodes:
             tree.nodes.remove(tree.nodes[name])
+    for sw in switches:
+        tree.nodes.remove(sw)
     tree.nodes.remove(node)
+    material.pop("scratch_addon_iridescent_layer", None)
     if base_src is not None:
         for sock in targets:
             tree.links.new(base_src, sock)

@@ -9,8 +9,8 @@ from __future__ import annotations
 import bpy
 
 from . import iridescence_material as im
-from . import osl_compile
-from .ui_utils import progress
+from . import osl_compile, panels
+from .ui_utils import progress, report_render_path
 
 
 def _material(context):
@@ -69,6 +69,7 @@ class SCRATCH_OT_add_iridescent_layer(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         self.report({"INFO"}, f"Iridescent layer on {mat.name}")
+        report_render_path(self, mat, context.scene)
         return {"FINISHED"}
 
 
@@ -219,7 +220,7 @@ class SCRATCH_PT_iridescence(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.engine == "CYCLES" and getattr(context, "material", None) is not None
+        return context.engine in panels.ENGINES and getattr(context, "material", None) is not None
 
     def draw(self, context):
         layout = self.layout

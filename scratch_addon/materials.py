@@ -28,12 +28,17 @@ def check_color(name: str, value) -> tuple[float, float, float, float]:
     return tuple(c[:3]) + (c[3] if len(c) == 4 else 1.0,)
 
 
+def ensure_nodes(idblock):
+    """The node tree of a material or world, switching its nodes on where Blender < 5.0 has them off."""
+    if idblock.node_tree is None or (bpy.app.version < (5, 0, 0) and not idblock.use_nodes):
+        idblock.use_nodes = True  # 5.0 always has a node tree (use_nodes is deprecated there)
+    return idblock.node_tree
+
+
 def new_material(name: str) -> bpy.types.Material:
     """A material with an empty node tree plus a Material Output node."""
     mat = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):  # 5.0 always has a node tree (use_nodes is deprecated)
-        mat.use_nodes = True
-    mat.node_tree.nodes.clear()
+    ensure_nodes(mat).nodes.clear()
     out = mat.node_tree.nodes.new("ShaderNodeOutputMaterial")
     out.location = (300, 0)
     return mat

@@ -20,7 +20,7 @@ import bpy
 
 import numpy as np
 
-from . import _deps, materials
+from . import _deps, materials, panels
 from .ui_utils import assign_material, poll_active_mesh, progress
 
 NDF_KINDS = (
@@ -295,7 +295,7 @@ class SCRATCH_PT_microgeometry(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.engine == "CYCLES"
+        return context.engine in panels.ENGINES
 
     def draw(self, context):
         layout = self.layout

@@ -8,7 +8,7 @@ from __future__ import annotations
 import bpy
 
 from . import api, osl_compile, presets, scratch_material
-from .ui_utils import assign_material, poll_active_mesh, progress
+from .ui_utils import assign_material, poll_active_mesh, progress, report_render_path
 
 
 def _preset_items(_self, _context):
@@ -42,11 +42,10 @@ class SCRATCH_OT_add_preset_material(bpy.types.Operator):
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         assign_material(obj, mat)
-        if p.kind == "scratch":
-            context.scene.cycles.shading_system = True
-            if not obj.data.uv_layers:
-                self.report({"WARNING"}, f"{obj.name} has no UV map: scratches follow UVs, add one")
+        if p.kind == "scratch" and not obj.data.uv_layers:
+            self.report({"WARNING"}, f"{obj.name} has no UV map: scratches follow UVs, add one")
         self.report({"INFO"}, f"Assigned {mat.name}")
+        report_render_path(self, mat, context.scene)
         return {"FINISHED"}
 
 
@@ -74,14 +73,35 @@ class SCRATCH_OT_update_material(bpy.types.Operator):
         except (ValueError, osl_compile.OSLCompileError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        context.scene.cycles.shading_system = True
         try:
             scratch_material.check_uvs(mat)
         except ValueError as exc:
             self.report({"WARNING"}, str(exc))
         err = mat.get("scratch_addon_fit_error")
         self.report({"INFO"}, f"Updated {mat.name}" + (f" (lobe fit error {100 * err:.1f} %)" if err is not None else ""))
+        report_render_path(self, mat, context.scene)
         return {"FINISHED"}
 
 
-classes = (SCRATCH_OT_add_preset_material, SCRATCH_OT_update_material)
+class SCRATCH_OT_use_osl(bpy.types.Operator):
+    """Render this scene with Cycles' Open Shading Language on the CPU, so OSL shaders (scratch coverage
+    filtered over the pixel footprint, iridescent glints, exact references) render instead of their
+    node-group twins"""
+
+    bl_idname = "scratch.use_osl"
+    bl_label = "Use OSL"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        scene = context.scene
+        changed = [name for name, value in (("engine", scene.render.engine != "CYCLES"),
+                                            ("device", scene.cycles.device != "CPU"),
+                                            ("shading system", not scene.cycles.shading_system)) if value]
+        scene.render.engine = "CYCLES"
+        scene.cycles.device = "CPU"
+        scene.cycles.shading_system = True
+        self.report({"INFO"}, "Cycles, CPU, Open Shading Language" + (f" (changed: {', '.join(changed)})" if changed else ""))
+        return {"FINISHED"}
+
+
+classes = (SCRATCH_OT_add_preset_material, SCRATCH_OT_update_material, SCRATCH_OT_use_osl)

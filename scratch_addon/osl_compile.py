@@ -20,8 +20,21 @@ class OSLCompileError(RuntimeError):
     """The OSL source failed to compile; the message carries the compiler output."""
 
 
+def _cycles_needs_oslquery() -> bool:
+    """Blender >= 4.3 reads a compiled shader's parameters with the ``oslquery`` module; 4.2's
+    ``cycles.osl`` asks ``_cycles.osl_update_node`` instead (its wheel ships no ``oslquery``)."""
+    import inspect
+
+    import cycles.osl  # Cycles' own add-on module, always present in bpy
+
+    try:
+        return "oslquery" in inspect.getsource(cycles.osl)
+    except (OSError, TypeError):
+        return True
+
+
 def ensure_oslquery() -> None:
-    """Make ``import oslquery`` work (no-op when it already does)."""
+    """Make ``import oslquery`` work where Cycles needs it (no-op when it already does)."""
     try:
         import oslquery  # noqa: F401
         return
@@ -37,7 +50,8 @@ def ensure_oslquery() -> None:
         if os.path.isdir(os.path.join(folder, "oslquery")) and folder not in sys.path:
             sys.path.append(folder)
             return
-    raise OSLCompileError("cannot find the 'oslquery' module shipped with Blender; OSL script nodes cannot be compiled")
+    if _cycles_needs_oslquery():
+        raise OSLCompileError("cannot find the 'oslquery' module shipped with Blender; OSL script nodes cannot be compiled")
 
 
 @contextlib.contextmanager

@@ -3,6 +3,12 @@ from __future__ import annotations
 
 import bpy
 
+from . import render_paths
+from .ui_utils import draw_render_path
+
+#: Render engines whose Material tab shows our panels: Cycles, and EEVEE (Material Preview).
+ENGINES = ("CYCLES", "BLENDER_EEVEE", "BLENDER_EEVEE_NEXT", "BLENDER_WORKBENCH")
+
 
 class SCRATCH_PT_material(bpy.types.Panel):
     bl_label = "Scratched Material"
@@ -12,7 +18,7 @@ class SCRATCH_PT_material(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.engine == "CYCLES"
+        return context.engine in ENGINES
 
     def draw(self, context):
         layout = self.layout
@@ -20,8 +26,8 @@ class SCRATCH_PT_material(bpy.types.Panel):
         mat = context.material
         if mat is None:
             return
-        if context.scene.cycles.shading_system is False and mat.get("scratch_addon_kind") == "scratch_svbrdf":
-            layout.label(text="Enable Open Shading Language (Render > Shading System)", icon="ERROR")
+        if mat.get("scratch_addon_kind") or render_paths.has_osl(mat):
+            draw_render_path(layout, mat, context.scene)
         s = mat.scratch
         col = layout.column()
         box = col.box()
@@ -60,6 +66,7 @@ class SCRATCH_PT_material(bpy.types.Panel):
         sub.prop(s, "lobes")
         row.prop(s, "resolution")
         box.prop(s, "mode", expand=True)
+        box.prop(s, "backend")
         col.operator("scratch.update_material", icon="FILE_REFRESH")
         err = mat.get("scratch_addon_fit_error")
         if err is not None:

@@ -75,6 +75,13 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
                                                  min=0, max=1)
     mode: bpy.props.EnumProperty(name="Mode", items=[("lobes", "Lobes", "Product path: light sampling kept"),
                                                      ("reference", "Reference", "Exact table via ray portals (validation)")])
+    backend: bpy.props.EnumProperty(
+        name="Shaders", default="osl",
+        items=[("osl", "OSL + Node Groups", "OSL shader where Cycles runs OSL on the CPU (footprint-filtered "
+                                           "scratch coverage), its node-group twin everywhere else (Cycles SVM, "
+                                           "GPU, EEVEE)"),
+               ("svm", "Node Groups Only", "Only the node-group (SVM) path: GPU, EEVEE and Cycles OSL alike; "
+                                          "scratch coverage is sampled per pixel")])
     resolution: bpy.props.EnumProperty(name="Table", items=[(v, v, f"{v}x{v} scratch BRDF table") for v in ("64", "128", "256", "512")],
                                        default="256")
 
@@ -99,7 +106,8 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             base["roughness"] = self.base_roughness
         diffuse = {"none": None, "color": tuple(self.diffuse_color), "wood": "wood"}[self.diffuse_type]
         return dict(profile=profile, fresnel=fresnel, layers=layers, lobes=self.lobes, base=base, mode=self.mode,
-                    resolution=int(self.resolution), tint=tuple(self.tint), diffuse=diffuse, lobe_shape=self.lobe_shape)
+                    resolution=int(self.resolution), tint=tuple(self.tint), diffuse=diffuse, lobe_shape=self.lobe_shape,
+                    backend=self.backend)
 
     def from_params(self, params: dict) -> None:
         """Fill the settings from preset parameters (only the fields a preset names)."""
@@ -132,6 +140,8 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             self.lobe_shape = params["lobe_shape"]
         elif "box_lobes" in params:
             self.lobe_shape = "box" if params["box_lobes"] else "fit"
+        if "backend" in params:
+            self.backend = params["backend"]
         diffuse = params.get("diffuse")
         if diffuse is None:
             self.diffuse_type = "none"

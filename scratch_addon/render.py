@@ -7,7 +7,7 @@ import time
 
 import bpy
 
-from . import _deps
+from . import _deps, materials
 
 
 def reset_scene() -> bpy.types.Scene:
@@ -53,7 +53,7 @@ def uniform_world(scene, strength: float = 1.0, color=(1.0, 1.0, 1.0)) -> None:
     """A constant environment (furnace tests)."""
     world = bpy.data.worlds.new("Uniform") if scene.world is None else scene.world
     scene.world = world
-    tree = world.node_tree
+    tree = materials.ensure_nodes(world)
     tree.nodes.clear()
     bg = tree.nodes.new("ShaderNodeBackground")
     bg.inputs["Color"].default_value = (*color, 1.0)
@@ -66,7 +66,7 @@ def studio_world(scene, strength: float = 1.0) -> None:
     """A procedural studio environment: bright sky gradient, soft-box stripes, dark floor."""
     world = bpy.data.worlds.new("Studio")
     scene.world = world
-    tree = world.node_tree
+    tree = materials.ensure_nodes(world)
     tree.nodes.clear()
     n, link = tree.nodes, tree.links.new
     coord = n.new("ShaderNodeTexCoord")

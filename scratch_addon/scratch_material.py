@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from . import _deps, materials, osl_compile
+from . import _deps, materials, osl_compile, render_paths
 
 profiles = _deps.sibling("precompute.profiles")
 fresnel_mod = _deps.sibling("precompute.fresnel")
@@ -153,6 +153,21 @@ def check_uvs(material: bpy.types.Material) -> None:
     _check_uvs_for(users)
 
 
+def _principled_conductor(nodes, fresnel):
+    """A mirror conductor for Blender < 4.3: Principled metallic, F82-tint model (Cycles' principled
+    metal: Base Color = F(0 deg), Specular Tint = F(82 deg) / Schlick(82 deg)), the closest built-in
+    match to ``fresnel`` there; exact at normal incidence and at 82 deg."""
+    f0 = np.broadcast_to(np.asarray(fresnel(np.array([1.0])), float).reshape(-1), (3,))
+    f82 = np.broadcast_to(np.asarray(fresnel(np.array([1.0 / 7.0])), float).reshape(-1), (3,))
+    schlick82 = f0 + (1.0 - f0) * (1.0 - 1.0 / 7.0) ** 5
+    node = nodes.new("ShaderNodeBsdfPrincipled")
+    node.inputs["Base Color"].default_value = (*np.clip(f0, 0.0, 1.0), 1.0)
+    node.inputs["Metallic"].default_value = 1.0
+    node.inputs["Roughness"].default_value = 0.0
+    node.inputs["Specular Tint"].default_value = (*np.clip(f82 / np.maximum(schlick82, 1e-6), 0.0, 1.0), 1.0)
+    return node
+
+
 def _base_node(tree, params: ScratchParams):
     """The base material closure node (eq. 4's ρ_b), or None."""
     b = params.base
@@ -168,6 +183,8 @@ def _base_node(tree, params: ScratchParams):
             node.inputs["Roughness"].default_value = 0.0
             node.inputs["Color"].default_value = (1, 1, 1, 1)
             return node
+        if hasattr(f, "k") and not hasattr(bpy.types, "ShaderNodeBsdfMetallic"):
+            return _principled_conductor(n, f)  # Blender < 4.3 has no Metallic BSDF node
         if hasattr(f, "k"):  # conductor (exact or Lazanyi): Cycles' own physical conductor
             node = n.new("ShaderNodeBsdfMetallic")
             node.fresnel_type = "PHYSICAL_CONDUCTOR"
@@ -264,65 +281,86 @@ def _jsonable(v):
 
 
 def build(material: bpy.types.Material, params: ScratchParams, progress=None, **spec_options) -> bpy.types.Material:
-    """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way."""
+    """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way.
+
+    Backend "svm": node groups only.  Backend "osl": the OSL script for Cycles with OSL on the CPU
+    plus its SVM twin for Cycles SVM (the default, GPU) and EEVEE, chosen by ``render_paths``."""
     step = progress or (lambda _f: None)
     step(0.05)
     brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
     step(0.4)
     lobe_data = _lobe_data(params, brdf) if params.mode == "lobes" else None
+    svm_lobes = lobe_data if params.backend == "svm" or params.lobe_shape == "table" else None
+    if svm_lobes is None:  # the SVM twin of fitted (per-lobe GGX/Beckmann) or reference shaders: table lobes
+        svm_lobes = scratch_lobes.table_lobes(brdf, slices=params.slices)
+    step(0.7)
+    src = None if params.backend == "svm" else shader_source(params, brdf, lobe_data, **spec_options)
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()
     out = tree.nodes.new("ShaderNodeOutputMaterial")
-    out.location = (500, 0)
-    if params.backend == "svm":
-        surface = _build_svm(tree, material, params, lobe_data)
-        return _finish(material, tree, out, surface, params, lobe_data, step)
-    src = shader_source(params, brdf, lobe_data, **spec_options)
-    text_name = f"{material.name}.scratch.osl"
-    script = osl_compile.script_node_from_source(tree, text_name, src)
-    script.location = (200, 0)
-    uv = tree.nodes.new("ShaderNodeUVMap")
-    uv.location = (-200, 100)
-    tangent = tree.nodes.new("ShaderNodeTangent")
-    tangent.direction_type = "UV_MAP"
-    tangent.location = (-200, -50)
-    if "UV" in script.inputs:
-        tree.links.new(uv.outputs["UV"], script.inputs["UV"])
-    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
-    script.inputs["Tint"].default_value = (*params.tint, 1.0) if len(script.inputs["Tint"].default_value) == 4 else params.tint
+    out.location = (900, 0)
     base = _base_node(tree, params)
-    if base is not None and "Base" in script.inputs:
+    if base is not None:
         base.location = (-200, -250)
-        tree.links.new(base.outputs[0], script.inputs["Base"])
-    return _finish(material, tree, out, script.outputs["BSDF"], params, lobe_data, step)
+    svm_surface = _build_svm(tree, material, params, svm_lobes, base)
+    osl_surface = None
+    if src is not None:
+        script = osl_compile.script_node_from_source(tree, f"{material.name}.scratch.osl", src)
+        script.location = (200, 300)
+        uv = tree.nodes.new("ShaderNodeUVMap")
+        uv.location = (-200, 400)
+        tangent = tree.nodes.new("ShaderNodeTangent")
+        tangent.direction_type = "UV_MAP"
+        tangent.location = (-200, 250)
+        if "UV" in script.inputs:
+            tree.links.new(uv.outputs["UV"], script.inputs["UV"])
+        tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+        tint = script.inputs["Tint"]
+        tint.default_value = (*params.tint, 1.0) if len(tint.default_value) == 4 else params.tint
+        if base is not None and "Base" in script.inputs:
+            tree.links.new(base.outputs[0], script.inputs["Base"])
+        osl_surface = script.outputs["BSDF"]
+    return _finish(material, tree, out, svm_surface, osl_surface, params, lobe_data, step)
 
 
-def _build_svm(tree, material, params: ScratchParams, lobe_data) -> bpy.types.NodeSocket:
-    """The node-group (SVM) path: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
+def _build_svm(tree, material, params: ScratchParams, lobe_data, base) -> bpy.types.NodeSocket:
+    """The node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
     svm = _deps.sibling("node_groups.scratch_svm")
     layers = params.layers
     theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
-    base = _base_node(tree, params)
-    return svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
-                     base_socket=None if base is None else base.outputs[0], name=material.name)
+    before = set(tree.nodes)
+    surface = svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
+                        base_socket=None if base is None else base.outputs[0], name=material.name)
+    frame = tree.nodes.new("NodeFrame")
+    frame.label = "SVM path (Cycles SVM / GPU, EEVEE)"
+    for node in set(tree.nodes) - before - {frame}:
+        node.location = (node.location[0] - 1400, node.location[1] - 600)
+        node.parent = frame
+    return surface
 
 
-def _finish(material, tree, out, surface, params: ScratchParams, lobe_data, step) -> bpy.types.Material:
-    """Diffuse term, output link, material flags and the stored parameters."""
+def _finish(material, tree, out, svm_surface, osl_surface, params: ScratchParams, lobe_data, step) -> bpy.types.Material:
+    """Diffuse term, output links (render paths), material flags and the stored parameters."""
     if params.diffuse is not None:  # a Lambertian term common to scratches and base (Fig. 12c, d)
         diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
-        diff.location = (200, -300)
+        diff.location = (400, -300)
         if params.diffuse == "wood":
             _wood_texture(tree, diff.inputs["Color"])
         else:
             diff.inputs["Color"].default_value = (*params.diffuse, 1.0)
-        add = tree.nodes.new("ShaderNodeAddShader")
-        add.location = (380, -100)
-        tree.links.new(surface, add.inputs[0])
-        tree.links.new(diff.outputs["BSDF"], add.inputs[1])
-        surface = add.outputs["Shader"]
-    tree.links.new(surface, out.inputs["Surface"])
+
+        def with_diffuse(surface, y):
+            add = tree.nodes.new("ShaderNodeAddShader")
+            add.location = (600, y)
+            tree.links.new(surface, add.inputs[0])
+            tree.links.new(diff.outputs["BSDF"], add.inputs[1])
+            return add.outputs["Shader"]
+
+        svm_surface = with_diffuse(svm_surface, -150)
+        if osl_surface is not None:
+            osl_surface = with_diffuse(osl_surface, 150)
+    render_paths.link_surface(tree, svm_surface, osl_surface, out)
     material.cycles.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
     material["scratch_addon_kind"] = "scratch_svbrdf"
     if lobe_data is not None:

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import contextlib
 
+from . import render_paths
+
 
 @contextlib.contextmanager
 def progress(context, total: int = 100):
@@ -30,3 +32,19 @@ def poll_active_mesh(cls, context, message: str = "Select a mesh object") -> boo
         cls.poll_message_set(message)
         return False
     return True
+
+
+def report_render_path(op, material, scene) -> None:
+    """Tell the user, in the operator's report, which path renders ``material`` in ``scene`` (a warning
+    when the OSL part of it cannot render there)."""
+    icon, line = render_paths.describe(material, scene)
+    op.report({"INFO"} if icon == "CHECKMARK" else {"WARNING"}, f"{material.name}: {line}")
+
+
+def draw_render_path(layout, material, scene) -> None:
+    """One panel line saying which path renders ``material`` and why, with a button to render with OSL."""
+    icon, line = render_paths.describe(material, scene)
+    row = layout.row()
+    row.label(text=line, icon=icon)
+    if render_paths.has_osl(material) and not render_paths.render_path.osl_renders(scene):
+        row.operator("scratch.use_osl", text="Use OSL", icon="SCRIPT")

@@ -206,7 +206,11 @@ def test_bake_operator_reference_mode(addon, scene, bmat):
         m = target.data.materials[0]
         assert m["biscale_mode"] == "reference"
         assert any(n.bl_idname == "ShaderNodeScript" for n in m.node_tree.nodes)
-        assert bpy.context.scene.cycles.shading_system        # the operator turned OSL on
+        assert not bpy.context.scene.cycles.shading_system    # the user's scene is left as it was ...
+        switch = m.node_tree.nodes["Scratch Render Path"]     # ... and the fitted closures render in it
+        assert switch.outputs[0].links[0].to_node.target == "CYCLES"
+        assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
+        assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"
         with pytest.raises(ValueError, match="mode"):
             bmat.make_biscale_material(None, mode="exact")
         with pytest.raises(ValueError, match="brdf"):

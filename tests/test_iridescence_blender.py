@@ -114,7 +114,11 @@ def test_operators_generate_add_remove(addon, irid, scene):
     assert bpy.ops.scratch.add_iridescent_layer() == {"FINISHED"}
     node = im.layer_node(mat)
     assert node is not None and node.bytecode
-    assert out.inputs["Surface"].links[0].from_node == node
+    switch = out.inputs["Surface"].links[0].from_node     # Cycles: the layer where OSL runs, else its base
+    assert switch.bl_idname == "ShaderNodeMixShader" and switch.inputs[2].links[0].from_node == node
+    assert switch.inputs[1].links[0].from_node == glossy and out.target == "CYCLES"
+    eevee = [n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and n.target == "EEVEE"]
+    assert len(eevee) == 1 and eevee[0].inputs["Surface"].links[0].from_node == glossy
     assert node.inputs["Base"].links[0].from_node == glossy
     assert node.inputs["UV"].is_linked and node.inputs["Tangent"].is_linked
     src_before = node.script.as_string()
@@ -127,8 +131,9 @@ def test_operators_generate_add_remove(addon, irid, scene):
     assert len(im.stored_scratches(mat)) == im.PRESETS["hairline_gold"]["count"]
     assert bpy.ops.scratch.remove_iridescent_layer() == {"FINISHED"}
     assert im.layer_node(mat) is None
-    assert out.inputs["Surface"].links[0].from_node == glossy
+    assert out.inputs["Surface"].links[0].from_node == glossy and out.target == "ALL"
     assert not [n for n in mat.node_tree.nodes if n.name.startswith(im.NODE_NAME)]
+    assert sorted(n.bl_idname for n in mat.node_tree.nodes) == sorted([glossy.bl_idname, out.bl_idname])  # as before
 
 
 def test_layer_on_the_scratch_svbrdf_material(addon, irid, scene):

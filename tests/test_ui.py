@@ -23,7 +23,8 @@ def test_add_scratch_preset_then_update(addon, scene):
     obj = _plane(addon, scene)
     assert bpy.ops.scratch.add_preset_material(preset="fig14a_shallow") == {"FINISHED"}
     mat = obj.active_material
-    assert mat["scratch_addon_kind"] == "scratch_svbrdf" and scene.cycles.shading_system
+    # the scene stays as the user has it (SVM): the material's node-group twin renders there
+    assert mat["scratch_addon_kind"] == "scratch_svbrdf" and not scene.cycles.shading_system
     s = mat.scratch
     assert (s.profile_type, s.n_layers, s.fresnel_type, s.metal) == ("quartic", 4, "metal", "iron")
     src_before = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
