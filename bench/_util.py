@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import os
 import statistics
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -14,16 +13,16 @@ ROOT = OUT.parent.parent
 
 
 def blender(register: bool = False):
-    """bpy, hermetic (a temporary ``BLENDER_USER_RESOURCES``), with the repo root on ``sys.path``;
-    returns the ``scratch_addon`` package, registered when asked (an earlier registration is kept)."""
+    """bpy, hermetic (a temporary ``BLENDER_USER_RESOURCES``); returns the glue package
+    ``scratch_materials.scratch_addon`` (the extension root's TD name; ``python -m bench`` runs from the
+    repository root, so it is importable), registered when asked (an earlier registration is kept)."""
     os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="bench_bl_"))
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
-    import scratch_addon
+    import scratch_materials
+    from scratch_materials import scratch_addon
 
     if register:
         try:
-            scratch_addon.register()
+            scratch_materials.register()
         except ValueError:
             pass  # already registered
     return scratch_addon

@@ -19,7 +19,7 @@ from bench._util import out_path, pyplot, report, time_median
 def _height_tile(res, amp, seed=0):
     from scipy.ndimage import gaussian_filter
 
-    from precompute.biscale_geometry import heightfield_tile
+    from scratch_materials.precompute.biscale.geometry import heightfield_tile
     rng = np.random.default_rng(seed)
     h = gaussian_filter(rng.random((res, res)), res / 20, mode="wrap")
     return heightfield_tile((h - h.min()) / np.ptp(h) * amp)
@@ -27,10 +27,10 @@ def _height_tile(res, amp, seed=0):
 
 def main(argv) -> int:
     quick = "--quick" in argv
-    from precompute import cache
-    from precompute.biscale import (BiscaleTile, brute_force_fr, brute_force_fr_at, precompute_M, psnr,
-                                    render_reference_fr, _M_MEMO)
-    from precompute.biscale_brdfs import material_lobes
+    from scratch_materials.precompute.tables import cache
+    from scratch_materials.precompute.biscale.effective import (BiscaleTile, brute_force_fr, brute_force_fr_at, precompute_M, psnr,
+                                              render_reference_fr, _M_MEMO)
+    from scratch_materials.precompute.biscale.brdfs import material_lobes
 
     cache.set_cache_dir(tempfile.mkdtemp(prefix="biscale_bench_"))  # cold cache: measure real precompute
     opts = dict(dir_res=6, normal_res=41, n_facets=2000, l_M=120) if quick else {}
@@ -199,9 +199,9 @@ def _fresh(cls, g, opts, mats):
 def _figure(plt, quick, opts):
     """docs/img/biscale_slices.png: cosine-weighted effective BRDF f̄r(ωi, ωo) over ωo (hemi-octahedral
     map) for a fixed ωi (θi = 45°, along x), for a flat tile, a groove (along y) and a 4- and 5-sided pyramid."""
-    from precompute.biscale import BiscaleTile
-    from precompute.biscale_directions import hemi_oct_decode
-    from precompute.biscale_geometry import flat_tile, groove_tile, pyramid_tile
+    from scratch_materials.precompute.biscale.effective import BiscaleTile
+    from scratch_materials.precompute.biscale.directions import hemi_oct_decode
+    from scratch_materials.precompute.biscale.geometry import flat_tile, groove_tile, pyramid_tile
     mats = [{"model": "cook_torrance", "alpha": 0.2, "F0": 0.9}] * 3
     tiles = {"flat": flat_tile(), "groove": groove_tile(depth=0.4), "pyramid 4": pyramid_tile(height=0.5),
              "pyramid 5": pyramid_tile(n_sides=5, height=0.5)}

@@ -33,7 +33,7 @@ def tiles(quick: bool):
     """(label, numpy Tile) of the four panels."""
     from scipy.ndimage import gaussian_filter
 
-    from precompute.biscale_geometry import groove_tile, heightfield_tile, pyramid_tile
+    from scratch_materials.precompute.biscale.geometry import groove_tile, heightfield_tile, pyramid_tile
     res = 24 if quick else 48
     h = gaussian_filter(np.random.default_rng(5).random((res, res)), res / 12, mode="wrap")
     bumps = heightfield_tile((h - h.min()) / np.ptp(h) * 0.25)
@@ -47,7 +47,7 @@ def _setup():
     from bench._util import blender
 
     blender(register=True)
-    from scratch_addon import biscale_material, render
+    from scratch_materials.scratch_addon import biscale_material, render
 
     return render, biscale_material
 
@@ -75,7 +75,7 @@ def _render(render, scene, torus, mat, path):
 
 def _inset(ax, tile):
     """Small shaded top view of the tile (lower-right corner), as in the paper's figures."""
-    from precompute.biscale_geometry import face_geometry
+    from scratch_materials.precompute.biscale.geometry import face_geometry
     V, F = np.asarray(tile.vertices), np.asarray(tile.faces)
     _, n = face_geometry(V, F)
     shade = np.clip(n @ np.array([-0.4, 0.5, 0.77]), 0.05, 1.0)
@@ -88,9 +88,9 @@ def _inset(ax, tile):
 
 def main(argv) -> int:
     from bench._util import out_path, pyplot, report
-    from precompute import cache
-    from precompute.biscale import BiscaleTile
-    from precompute.biscale_fit import fit_closures
+    from scratch_materials.precompute.tables import cache
+    from scratch_materials.precompute.biscale.effective import BiscaleTile
+    from scratch_materials.precompute.biscale.fit import fit_closures
 
     quick = "--quick" in argv
     with_ref = "--reference" in argv

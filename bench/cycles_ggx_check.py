@@ -53,14 +53,14 @@ def _setup_bpy():
     from bench._util import blender
 
     blender()
-    from scratch_addon import materials, osl_compile, render
+    from scratch_materials.scratch_addon import materials, osl_compile, render
 
     return render, materials, osl_compile
 
 
 def main(argv) -> int:
     from bench._util import out_path, pyplot, report
-    from precompute import cycles_ggx as cg
+    from scratch_materials.precompute.cycles import ggx as cg
 
     quick = "--quick" in argv
     render, materials, osl_compile = _setup_bpy()
@@ -109,5 +109,4 @@ def main(argv) -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT))
     sys.exit(main(sys.argv[1:]))

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from bench._util import pyplot
-from precompute import profiles
-from precompute.scratch_brdf import simulate
+from scratch_materials.precompute.scratch import profiles
+from scratch_materials.precompute.scratch.brdf import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 

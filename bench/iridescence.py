@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bench._util import out_path, pyplot, report, time_median
-from precompute import iridescence as ir
+from scratch_materials.precompute.iridescence import model as ir
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "img"
 

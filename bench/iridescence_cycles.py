@@ -124,7 +124,7 @@ def _setup():
     from bench._util import blender
 
     blender(register=True)
-    from scratch_addon import iridescence_material as im, render
+    from scratch_materials.scratch_addon import iridescence_material as im, render
 
     return render, im
 
@@ -144,7 +144,7 @@ def _timed_runs(configs, build, reps, tmp):
 
 
 def _render_array(scene, tmp, name):
-    from scratch_addon import render
+    from scratch_materials.scratch_addon import render
 
     return render.render_array(scene, tmp, name.replace(" ", "_").replace("+", "p"))
 
@@ -152,7 +152,7 @@ def _render_array(scene, tmp, name):
 def main(argv) -> int:
     from bench._util import out_path, pyplot, report
     from bench.iridescence_fig import plate_scene, plate_scratches
-    from precompute import iridescence as ir
+    from scratch_materials.precompute.iridescence import model as ir
 
     quick = "--quick" in argv
     render, im = _setup()

@@ -23,7 +23,7 @@ from bench._util import out_path, pyplot, report
 
 def measured_like(seed: int = 3, sigma: float = 8.0, amp: float = 0.004):
     """x in [0, 1] (257 samples), h = -0.25 sin^2(pi x) + amp * (Gaussian-smoothed unit noise, sigma samples)."""
-    from precompute import profiles
+    from scratch_materials.precompute.scratch import profiles
 
     rng = np.random.default_rng(seed)
     x = np.linspace(0, 1, 257)
@@ -33,7 +33,7 @@ def measured_like(seed: int = 3, sigma: float = 8.0, amp: float = 0.004):
 
 
 def _profiles(quick: bool, seg: int):
-    from precompute import profiles
+    from scratch_materials.precompute.scratch import profiles
 
     out = [("quartic_0.1", profiles.quartic(0.1, segments=seg)), ("vgroove_45", profiles.v_groove(45.0))]
     if not quick:
@@ -44,7 +44,7 @@ def _profiles(quick: bool, seg: int):
 
 
 def main(argv) -> int:
-    from precompute import fresnel, lobe_fit, lobe_table, scratch_brdf
+    from scratch_materials.precompute.scratch import fresnel, lobe_fit, lobe_table, brdf as scratch_brdf
 
     import argparse
 

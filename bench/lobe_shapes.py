@@ -45,8 +45,8 @@ def main(argv) -> int:
     spps = (4, 16) if a.quick else (4, 16, 64, 256)
     truth_spp = 256 if a.quick else a.truth_spp
     blender()
-    from precompute import scratch_brdf, scratch_lobes
-    from scratch_addon import materials, render, scratch_material as sm
+    from scratch_materials.precompute.scratch import brdf as scratch_brdf, lobes as scratch_lobes
+    from scratch_materials.scratch_addon import materials, render, scratch_material as sm
 
     tmp = tempfile.mkdtemp(prefix="bench_lobe_shapes_")
     layers = dict(n_layers=4, theta_deg=360, length=0.3, width=0.005, density=0.2) if a.scene == "demo" else None

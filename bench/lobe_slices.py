@@ -14,7 +14,7 @@ import numpy as np
 
 def main(argv) -> int:
     from bench._util import out_path, pyplot, report
-    from precompute import lobe_fit as lf, lobe_table as lt, profiles, scratch_brdf
+    from scratch_materials.precompute.scratch import lobe_fit as lf, lobe_table as lt, profiles, brdf as scratch_brdf
 
     M, S = 256, 128
     phi = lf.slice_centres(S)

@@ -19,11 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from bench._util import out_path, pyplot, report, time_median
-from precompute.heightfield import gaussian_surface, spectral_slope_covariance
-from precompute.microgeometry import (
-    ellipsoid_ndf, filtered_ndf, fit_beckmann, fit_ellipsoid, kirchhoff_integral_direct, kirchhoff_integral_fft,
-    kirchhoff_ndf, naive_ndf,
-)
+from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface, spectral_slope_covariance
+from scratch_materials.precompute.microgeometry.ndf import (ellipsoid_ndf, filtered_ndf, fit_beckmann, fit_ellipsoid,
+                                          kirchhoff_integral_direct, kirchhoff_integral_fft, kirchhoff_ndf, naive_ndf)
 
 DOCS_IMG = Path(__file__).resolve().parent.parent / "docs" / "img"
 

@@ -29,7 +29,7 @@ DOCS_IMG = ROOT / "docs" / "img"
 
 def brushed_heightfield(shape, pixel_um: float = 1.0, seed: int = 5):
     """Brushed surface (µm): scratches along x whose depth varies slowly across the sample."""
-    from precompute.heightfield import HeightField, gaussian_surface
+    from scratch_materials.precompute.microgeometry.heightfield import HeightField, gaussian_surface
 
     scratches = gaussian_surface(shape, pixel_um, 0.12, (150.0, 3.0), seed=seed)
     depth = gaussian_surface(shape, pixel_um, 1.0, (600.0, 60.0), seed=seed + 1)
@@ -66,8 +66,8 @@ def main(argv: list[str]) -> int:
     from bench._util import blender
 
     blender()
-    from scratch_addon import microgeometry_ops as mg
-    from scratch_addon import render
+    from scratch_materials.scratch_addon import microgeometry_ops as mg
+    from scratch_materials.scratch_addon import render
 
     tmp = tempfile.mkdtemp(prefix="bench_fig13_")
     hf = brushed_heightfield(field)

@@ -23,7 +23,7 @@ def _setup(kind: str):
     from bench._util import blender
 
     blender()
-    from scratch_addon import materials, osl_compile, render
+    from scratch_materials.scratch_addon import materials, osl_compile, render
 
     scene = render.reset_scene()
     if kind == "osl":

@@ -20,8 +20,8 @@ import time
 import numpy as np
 
 from bench._util import out_path, pyplot, report, time_median
-from precompute import fresnel, profiles
-from precompute.scratch_brdf import bin_cos_integrals, default_supersample, simulate
+from scratch_materials.precompute.scratch import fresnel, profiles
+from scratch_materials.precompute.scratch.brdf import bin_cos_integrals, default_supersample, simulate
 
 
 def errors(rho, ref):

@@ -28,7 +28,7 @@ def _modules():
     from bench._util import blender
 
     scratch_addon = blender()
-    from scratch_addon import materials, render, scratch_material
+    from scratch_materials.scratch_addon import materials, render, scratch_material
 
     return scratch_addon, materials, render, scratch_material
 

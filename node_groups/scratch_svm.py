@@ -25,6 +25,8 @@ import math
 import bpy
 import numpy as np
 
+from ..precompute.cycles.glossy import glossy_node_params
+
 _PI = math.pi
 
 
@@ -90,15 +92,13 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
     """Packed Non-Color float images of a lobe table: W (RGB weights, tilt jitter) and P (tilt, roughness,
     anisotropy, γ); alpha is "channel packed" (a data channel, never multiplied into the colour).
 
-    Rows = φo slices (row 0 at the bottom = slice 0), columns = lobes.  Glossy parameters follow
-    Cycles' mapping (α = roughness², α_u = α(1 - an), α_v = α / (1 - an)) so that α_u = alpha_x along
-    the scratch and α_v = the lobe width: roughness = (α_x α_y)^¼, anisotropy = 1 - √(α_x / α_y).
+    Rows = φo slices (row 0 at the bottom = slice 0), columns = lobes.  Glossy parameters from
+    ``precompute.cycles.glossy.glossy_node_params``: α_u = alpha_x along the scratch, α_v = the lobe width.
     """
     w = np.asarray(entry["weights"], np.float32)             # [S, K, 3]
     S, K = w.shape[:2]
     ay = np.maximum(np.asarray(entry["widths"], np.float64), alpha_x)
-    rough = (alpha_x * ay) ** 0.25
-    aniso = np.clip(1.0 - np.sqrt(alpha_x / ay), 0.0, 0.99)
+    rough, aniso = glossy_node_params(np.full_like(ay, alpha_x), np.minimum(ay, 1.0))  # Cycles clamps alpha to 1
     p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
     jit = np.asarray(entry.get("jitters", np.zeros((S, K))), np.float32)[..., None]
     return _data_image(f"{name}.W", np.concatenate([w, jit], -1)), _data_image(f"{name}.P", p)
@@ -317,8 +317,9 @@ def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
     ay = max(float(lobe_data["alpha_y"]), ax)
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
     g._set(glossy.inputs["Color"], colour)
-    g._set(glossy.inputs["Roughness"], (ax * ay) ** 0.25)
-    g._set(glossy.inputs["Anisotropy"], float(np.clip(1.0 - np.sqrt(ax / ay), 0.0, 0.99)))
+    rough, aniso = glossy_node_params(ax, min(ay, 1.0))
+    g._set(glossy.inputs["Roughness"], rough)
+    g._set(glossy.inputs["Anisotropy"], aniso)
     g._set(glossy.inputs["Normal"], n_l)
     g._set(glossy.inputs["Tangent"], u)
     return glossy.outputs[0]

@@ -58,10 +58,7 @@ import numpy as np
 
 from . import const_array
 
-try:  # installed extension: precompute is a sibling package
-    from ..precompute.scratch_set import cell_pairs, csr_from_pairs
-except ImportError:  # repo root on sys.path: top-level packages
-    from precompute.scratch_set import cell_pairs, csr_from_pairs
+from ..precompute.iridescence.scratch_set import cell_pairs, csr_from_pairs
 
 SIGMA_UM = 60.0
 RGB_WAVELENGTHS_UM = (0.630, 0.532, 0.465)   # = precompute.iridescence.RGB_WAVELENGTHS_UM

@@ -1,36 +1,31 @@
-"""Pure-numpy science for the scratch add-on.
+"""Pure-numpy science for the scratch add-on: one subpackage per paper, plus shared parts.
 
-This package never imports ``bpy``: it is usable as a plain Python library
-(``import precompute``) and is tested without Blender.  One concept per module:
+Never imports ``bpy``: usable as a plain library (``import precompute`` with the repository on
+``sys.path``) and tested without Blender.  Inside the extension it is reached by relative imports
+(``from ..precompute.scratch import brdf``), so it has one name per process.
 
-Infrastructure
-- ``exr_io``            float EXR read/write (atomic writes)
-- ``cache``             content-hash-keyed EXR cache of precomputed tables
+Papers
+- ``scratch``        Raymond et al. 2016 — structured scratch SV-BRDF: profiles, Fresnel, the exact
+                     2D beam tracer and its tables (eq. 2), layers (eq. 7), lobes for the shader
+- ``microgeometry``  Dong et al. 2015 — measured height fields to filtered / Kirchhoff NDFs, the
+                     ellipsoid NDF (eqs. 10-14), §9 synthesis, Glossy-node parameters
+- ``biscale``        Wu, Dorsey, Rushmeier 2011 — a small-scale tile to an effective BRDF table
+- ``iridescence``    Velinov, Werner, Hullin 2018 — the wave-optical scratch layer, area lights, Si
 
-Raymond et al. 2016 — structured scratch SV-BRDF
-- ``profiles``          scratch profiles (§5.3): quartic, V-groove, round, tabulated/measured
-- ``fresnel``           Fresnel reflectance: Schlick, Lazanyi-Szirmay-Kalos, exact conductor
-- ``scratch_beam``      exact 2D beam tracer of a polyline profile (§4.1-4.2)
-- ``scratch_mc``        Monte Carlo reference tracer
-- ``scratch_brdf``      the (ρ0, ρm, γ) tables, eq. 2, importance sampling (§5.1)
-- ``scratch_layers``    layer distributions (eq. 7) and the noise's mean coverage
-- ``cycles_ggx``        numpy twin of Cycles' GGX closure and its cone collapse
-- ``lobe_fit``          tilted-lobe fits of table slices
-- ``scratch_lobes``     lobe tables for the shader (energy-preserving, per-channel weights)
+Shared
+- ``cycles``         numpy twins of Cycles' closures (GGX, Beckmann) and the one Glossy-node mapping
+- ``tables``         content-hash cache of float tables, EXR read/write
+- ``validation``     the validators every pipeline uses (ValueError naming the parameter and range)
 
-Dong et al. 2015 — measured microgeometry
-- ``heightfield``       height-field readers and synthetic surfaces
-- ``microgeometry``     naive / filtered / Kirchhoff NDFs
-- ``ellipsoid_ndf``     ellipsoid NDF (eqs. 10-14), GGX/Beckmann fits
-- ``ndf_synthesis``     NDF texture synthesis (§9)
-
-Wu, Dorsey, Rushmeier 2011 — bi-scale material design
-- ``biscale``           effective BRDF of a small-scale tile (public entry point)
-- ``biscale_geometry``, ``biscale_visibility``, ``biscale_directions``, ``biscale_brdfs``, ``biscale_svd``
-
-Velinov, Werner, Hullin 2018 — iridescent scratches
-- ``iridescence``       wave-optical scratch layer (public entry point)
-- ``iridescence_lights`` closed-form sphere/polygon light integrals, Si
-- ``scratch_set``       scratch sets, spatial grid, shader export
-- ``cie``               CIE colour matching (Wyman et al. 2013 fit) to linear Rec.709
+The public API names of earlier releases keep working (re-exports): ``precompute.profiles``,
+``precompute.fresnel`` and ``precompute.scratch_brdf`` are ``precompute.scratch.profiles``,
+``.fresnel`` and ``.brdf``; ``precompute.microgeometry``, ``precompute.biscale`` and
+``precompute.iridescence`` export their public functions from the subpackage.
 """
+import sys as _sys
+
+from .scratch import brdf as scratch_brdf, fresnel, profiles
+
+for _name, _module in (("profiles", profiles), ("fresnel", fresnel), ("scratch_brdf", scratch_brdf)):
+    _sys.modules.setdefault(f"{__name__}.{_name}", _module)  # ``import precompute.profiles`` keeps working
+del _name, _module

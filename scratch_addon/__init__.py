@@ -1,7 +1,9 @@
 """Scratched & microgeometry materials for Cycles (Blender add-on glue).
 
-Registration is the same for the installed extension and for TD scripts that put the
-repository root on ``sys.path`` and call ``scratch_addon.register()`` with bpy as a module.
+The extension root package (``bl_ext.<repo>.scratch_addon`` installed, ``scratch_materials`` for TD
+scripts) calls ``register()``; this package builds node trees, reads properties and reports, and
+reaches the science (``..precompute``), the shaders (``..osl``) and the node groups
+(``..node_groups``) by relative imports only.
 """
 from __future__ import annotations
 

@@ -19,18 +19,15 @@
 """
 from __future__ import annotations
 
-import hashlib
-import os
-
 import bpy
 import numpy as np
 
-from . import _deps, osl_compile, render_paths
+from ..node_groups import biscale as biscale_groups
+from ..osl import biscale_reference
+from ..precompute.biscale import fit as fitmod
+from ..precompute.biscale.bake import bake_tables, get_tile, mesh_hash  # noqa: F401 - re-exports
+from . import osl_compile, render_paths
 from .materials import new_material
-
-#: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
-_TILE_CACHE: dict = {}
-_TILE_CACHE_MAX = 4
 
 
 def tile_from_object(obj, depsgraph=None):
@@ -64,14 +61,6 @@ def tile_from_object(obj, depsgraph=None):
                          f"{ext[1]:.6g}); the tile is not tileable")
     V = V - np.array([lo[0], lo[1], 0.0])
     return V, F, M, P
-
-
-def mesh_hash(V, F, M, P) -> str:
-    h = hashlib.sha256()
-    for a in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64), np.ascontiguousarray(M, np.int64)):
-        h.update(a.tobytes())
-    h.update(repr(float(P)).encode())
-    return h.hexdigest()[:24]
 
 
 def _output_shader_node(mat):
@@ -114,22 +103,6 @@ def small_scale_material(mat) -> dict:
     return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
 
 
-def get_tile(V, F, M, P, color_weights=None, **opts):
-    """Cached ``BiscaleTile`` (visibility + N reused when only colours or materials change)."""
-    bs = _deps.sibling("precompute.biscale")
-    key = (mesh_hash(V, F, M, P), tuple(sorted(opts.items())))
-    tile = _TILE_CACHE.get(key)
-    hit = tile is not None
-    if tile is None:
-        tile = bs.BiscaleTile(V, F, M, period=P, color_weights=color_weights, **opts)
-        if len(_TILE_CACHE) >= _TILE_CACHE_MAX:
-            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
-        _TILE_CACHE[key] = tile
-    elif color_weights is not None or tile.alpha.min() != 1.0 or tile.alpha.max() != 1.0:
-        tile.set_color_weights(color_weights)  # colour edit: N only
-    return tile, hit
-
-
 MODES = ("fit", "reference")
 
 
@@ -151,8 +124,8 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     if fit is None and mode == "fit":
         raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale_fit.fit_closures)")
     if fit is None:  # the reference mode's twin where OSL cannot run
-        fit = _deps.sibling("precompute.biscale_fit").fit_closures(brdf)
-    src = _deps.sibling("osl.biscale_reference").generate(brdf) if mode == "reference" else None  # ValueError first
+        fit = fitmod.fit_closures(brdf)
+    src = biscale_reference.generate(brdf) if mode == "reference" else None  # ValueError first
     mat = new_material(name)
     try:
         svm_surface = _fit_closures(mat.node_tree, fit, use_tilted)
@@ -171,8 +144,7 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
 
 def _fit_closures(tree, fit, use_tilted: bool):
     """Diffuse BSDF + one "Scratch: Bi-scale Lobe" group per fitted lobe, summed; returns the closure socket."""
-    fitmod = _deps.sibling("precompute.biscale_fit")
-    group = _deps.sibling("node_groups.biscale").ensure()
+    group = biscale_groups.ensure()
     diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
     diff.inputs["Color"].default_value = (*[float(c) for c in np.clip(fit.diffuse, 0, 1)], 1.0)
     diff.inputs["Roughness"].default_value = 0.0
@@ -219,44 +191,31 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials) as a material
     applied to ``target`` (if given): ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
     the exact table importance-sampled in OSL where Cycles runs OSL on the CPU, the fitted closures elsewhere.
-    Returns (material, EffectiveBRDF, ClosureFit or None, info dict).  ``progress(fraction)`` is
+    Returns (material, EffectiveBRDF, ClosureFit, info dict).  ``progress(fraction)`` is
     called between steps."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
     if mode == "reference":
-        max_res = _deps.sibling("osl.biscale_reference").MAX_DIR_RES
+        max_res = biscale_reference.MAX_DIR_RES
         dr = opts.get("dir_res", 10)
         if dr > max_res:
             raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
                              f"{max_res}, got {dr}")
-    fitmod = _deps.sibling("precompute.biscale_fit")
-    cache = _deps.sibling("precompute.cache")
     step = progress or (lambda f: None)
     step(0.0)
     V, F, M, P = tile_from_object(tile_obj, depsgraph)
     slots = [s.material for s in tile_obj.material_slots] or [None]
     materials = [small_scale_material(m) for m in slots]
-    M = np.minimum(M, len(materials) - 1)
     step(0.1)
-    tile, reused = get_tile(V, F, M, P, **opts)
-    step(0.3)
-    brdf = tile.effective_brdf(materials)
-    step(0.7)
-    fit = fitmod.fit_closures(brdf, n_lobes=n_lobes)  # the reference mode's SVM / EEVEE twin too
-    step(0.9)
-    h = mesh_hash(V, F, M, P)
-    exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
-    os.makedirs(exr_dir, exist_ok=True)
-    exr = os.path.join(exr_dir, f"biscale_{h}_{abs(hash(repr(materials))) % 10 ** 8}.exr")
-    brdf.save_exr(exr)
+    brdf, fit, info = bake_tables(V, F, M, P, materials, n_lobes=n_lobes, exr_dir=exr_dir,
+                                  progress=lambda f: step(0.1 + 0.8 * f), **opts)
     mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf)
-    mat["biscale_table"] = exr
+    mat["biscale_table"] = info["exr"]
     if target is not None:
         if target.data.materials:
             target.data.materials[target.active_material_index] = mat
         else:
             target.data.materials.append(mat)
     step(1.0)
-    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials,
-            "mode": mode}
+    info["mode"] = mode
     return mat, brdf, fit, info

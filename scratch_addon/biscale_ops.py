@@ -4,13 +4,13 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from . import _deps, ui_utils
+from ..precompute.biscale import geometry as geo
+from . import ui_utils
 from .ui_utils import progress
 
 
 def tile_mesh(kind: str, **params):
     """numpy ``Tile`` of a procedural kind (§4.2); heightfield-image reads ``image`` (a bpy image)."""
-    geo = _deps.sibling("precompute.biscale_geometry")
     if kind == "PYRAMID":
         return geo.pyramid_tile(n_sides=params.get("n_sides", 4), height=params.get("height", 0.5),
                                 base=params.get("base", 1.0))

@@ -21,12 +21,20 @@ def _script_args(argv: list[str]) -> list[str]:
 
 def _import_api():
     if __package__:
-        from . import api  # imported as scratch_addon.cli / bl_ext...scratch_addon.cli
+        from . import api  # imported as <root>.scratch_addon.cli (bl_ext.<repo>.scratch_addon or scratch_materials)
         return api
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    if root not in sys.path:
-        sys.path.insert(0, root)
-    import scratch_addon.api as api
+    # Run as a script (``blender -b -P scratch_addon/cli.py``): load the extension root package by its
+    # file, under its TD name, instead of putting the repository on sys.path (no top-level precompute).
+    root = sys.modules.get("scratch_materials")
+    if root is None:
+        import importlib.util
+
+        here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        spec = importlib.util.spec_from_file_location("scratch_materials", os.path.join(here, "scratch_materials.py"))
+        root = importlib.util.module_from_spec(spec)
+        sys.modules["scratch_materials"] = root
+        spec.loader.exec_module(root)
+    from scratch_materials.scratch_addon import api
     return api
 
 

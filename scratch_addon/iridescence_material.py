@@ -21,10 +21,10 @@ import math
 import bpy
 import numpy as np
 
-from . import _deps, materials, osl_compile, render_paths
+from ..osl import iridescent_layer as layer_gen
+from ..precompute.iridescence import scratch_set
+from . import materials, osl_compile, render_paths
 
-scratch_set = _deps.sibling("precompute.scratch_set")
-layer_gen = _deps.sibling("osl.iridescent_layer")
 
 NODE_NAME = "Iridescent Scratch Layer"
 _UV_NAME = NODE_NAME + " UV"

@@ -3,29 +3,8 @@ from __future__ import annotations
 
 import bpy
 
-from . import _deps
-
-
-def check_range(name: str, value: float, lo: float, hi: float) -> float:
-    """Return ``float(value)`` or raise ValueError naming the parameter and its allowed range."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number in [{lo}, {hi}], got {value!r}") from None
-    if not (lo <= v <= hi):  # also rejects NaN
-        raise ValueError(f"{name} must be in [{lo}, {hi}], got {value!r}")
-    return v
-
-
-def check_color(name: str, value) -> tuple[float, float, float, float]:
-    """RGB or RGBA with components in [0, 1] -> RGBA tuple."""
-    try:
-        c = [float(x) for x in value]
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be 3 or 4 numbers in [0, 1], got {value!r}") from None
-    if len(c) not in (3, 4) or not all(0.0 <= x <= 1.0 for x in c):
-        raise ValueError(f"{name} must be 3 or 4 numbers in [0, 1], got {value!r}")
-    return tuple(c[:3]) + (c[3] if len(c) == 4 else 1.0,)
+from ..node_groups import brushed
+from ..precompute.validation import check_color, check_range  # noqa: F401 - the glue's validators
 
 
 def ensure_nodes(idblock):
@@ -56,7 +35,7 @@ def make_brushed_material(
     roughness = check_range("roughness", roughness, 0.0, 1.0)
     anisotropy = check_range("anisotropy", anisotropy, -1.0, 1.0)
     rotation = check_range("rotation", rotation, 0.0, 1.0)
-    group = _deps.sibling("node_groups.brushed").ensure()
+    group = brushed.ensure()
     mat = new_material(name)
     tree = mat.node_tree
     node = tree.nodes.new("ShaderNodeGroup")

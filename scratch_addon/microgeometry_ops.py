@@ -1,128 +1,28 @@
 """Material from a measured height field (Dong et al. 2015, §5.1, §6, §8-9): operator, panel, builders.
 
-``scratch.material_from_heightfield`` reads a height field (.npy/.npz/.exr/text grid, see
-``precompute.heightfield``), computes its average NDF (filtered §5.1 / naive / Kirchhoff §6),
-fits the ellipsoid NDF (§8) and converts it to Glossy parameters
-(``precompute.microgeometry_material``); optionally it synthesises a spatially varying ellipsoid
-texture (§9) from a texel strip along x and one along y of the scan and packs it into two Non-Color
-float images.  Tables are cached (``precompute.cache.cached_arrays``, key = file content hash +
-parameters), so re-running with the same inputs is instant.
+``scratch.material_from_heightfield`` gets the height field's tables from
+``precompute.microgeometry.tables.compute_tables`` (average NDF, ellipsoid fit, optional §9 texture;
+cached by file content hash) and builds the material: Glossy parameters from
+``precompute.microgeometry.glossy`` in the node groups of ``node_groups.microgeometry``, the texture
+packed into two Non-Color float images.
 
 Headless use: ``bpy.ops.scratch.material_from_heightfield(filepath=..., pixel_um=..., ...)`` with a
 mesh as the active object; or call :func:`material_from_heightfield` directly.
 """
 from __future__ import annotations
 
-import hashlib
 import os
 
 import bpy
 
 import numpy as np
 
-from . import _deps, materials, panels
+from ..node_groups import microgeometry as mg_groups
+from ..precompute.microgeometry import glossy as conv
+from ..precompute.microgeometry import tables as mg_tables
+from ..precompute.microgeometry.tables import NDF_KINDS, file_sha256  # noqa: F401 - re-exports
+from . import materials, panels
 from .ui_utils import assign_material, poll_active_mesh, progress
-
-NDF_KINDS = (
-    ("FILTERED", "Filtered", "Gaussian-weighted plane fits, sigma (§5.1; the paper's default)"),
-    ("NAIVE", "Naive", "Triangle normals of the raw height field (§5.1)"),
-    ("KIRCHHOFF", "Kirchhoff", "Kirchhoff D_K at wavelength lambda (eq. 6, Appendix A)"),
-)
-_NDF_RESOLUTION = 513
-_TEXEL_TABLE_RESOLUTION = 257
-
-
-def _pc(name):
-    return _deps.sibling("precompute." + name)
-
-
-def file_sha256(path: str) -> str:
-    """SHA-256 of a file's bytes (the cache key of a height field)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _check_params(pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um):
-    pixel_um = materials.check_range("pixel_um", pixel_um, 1e-4, 1e4)
-    sigma_um = materials.check_range("sigma_um", sigma_um, 1e-4, 1e4)
-    wavelength_um = materials.check_range("wavelength_um", wavelength_um, 0.05, 100.0)
-    if ndf_kind not in {k for k, _, _ in NDF_KINDS}:
-        raise ValueError(f"ndf_kind must be one of {[k for k, _, _ in NDF_KINDS]}, got {ndf_kind!r}")
-    texture_size = int(materials.check_range("texture_size", texture_size, 8, 4096))
-    texel_um = materials.check_range("texel_um", texel_um, 1e-3, 1e5)
-    return pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um
-
-
-def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavelength_um: float = 0.555,
-                   ndf_kind: str = "FILTERED", synthesize: bool = False, texture_size: int = 256,
-                   texel_um: float = 63.5, seed: int = 0, progress=None) -> dict:
-    """Average ellipsoid parameters (and optionally a synthesised (S, S, 5) texture), cached.
-
-    Units: micrometres (pixel size, sigma, wavelength, texel size).  Returns
-    ``{"ellipsoid": (5,), "texture": (S, S, 5) (if synthesize), "cached": bool}``.  ``progress(f)``
-    is called with fractions in [0, 1].  Raises ``ValueError`` with the parameter's name on bad input.
-    """
-    pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um = _check_params(
-        pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um)
-    filepath = bpy.path.abspath(filepath) if filepath.startswith("//") else filepath
-    if not filepath or not os.path.isfile(filepath):
-        raise ValueError(f"filepath: no such height-field file {filepath!r}")
-    report = progress or (lambda f: None)
-    hfm, mg, syn, cache = _pc("heightfield"), _pc("microgeometry"), _pc("ndf_synthesis"), _pc("cache")
-    ell = _pc("ellipsoid_ndf")
-    version = cache.code_version(hfm, mg, ell, syn)
-    f32 = lambda v: float(np.float32(v))  # noqa: E731 - operator properties are float32: same key either way
-    uses_sigma = ndf_kind == "FILTERED" or synthesize
-    inputs = {"file_sha256": file_sha256(filepath), "pixel_um": f32(pixel_um), "ndf_kind": ndf_kind,
-              "sigma_um": f32(sigma_um) if uses_sigma else 0.0,
-              "wavelength_um": f32(wavelength_um) if ndf_kind == "KIRCHHOFF" else 0.0,
-              "synthesize": bool(synthesize), "texture_size": texture_size if synthesize else 0,
-              "texel_um": f32(texel_um) if synthesize else 0.0, "seed": int(seed) if synthesize else 0}
-    state = {"cached": True}
-
-    def compute():
-        state["cached"] = False
-        hf = hfm.load_heightfield(filepath, pixel_um=pixel_um)
-        report(0.1)
-        if ndf_kind == "FILTERED":
-            ndf = mg.filtered_ndf(hf, sigma_um=sigma_um, resolution=_NDF_RESOLUTION)
-        elif ndf_kind == "NAIVE":
-            ndf = mg.naive_ndf(hf, resolution=_NDF_RESOLUTION)
-        else:
-            ndf = mg.kirchhoff_ndf(hf, wavelength_um=wavelength_um, resolution=_NDF_RESOLUTION, normalize=True)
-        report(0.4)
-        out = {"ellipsoid": np.array(mg.fit_ellipsoid(ndf), dtype=np.float64)}
-        report(0.5)
-        if synthesize:
-            strip_x, strip_y = _strips(hf, texel_um)
-            out["texture"] = syn.synthesize_from_strips(strip_x, strip_y, (texture_size, texture_size), texel_um,
-                                                        hf.pixel_um, sigma_um, int(seed), _TEXEL_TABLE_RESOLUTION)
-        report(0.9)
-        return out
-
-    result = {k: np.array(v, dtype=np.float64) for k, v in
-              cache.cached_arrays("microgeometry_material", version, inputs, compute).items()}
-    for v in result.values():  # float32 storage can round a clamped bound just outside the valid range
-        v[..., :2] = np.clip(v[..., :2], ell.ALPHA_MIN, ell.ALPHA_MAX)
-        v[..., 2:4] = np.clip(v[..., 2:4], -ell.THETA_XY_MAX, ell.THETA_XY_MAX)
-    result["cached"] = state["cached"]
-    report(1.0)
-    return result
-
-
-def _strips(hf, texel_um: float):
-    """§9 exemplars: the middle texel-high row band (along x) and texel-wide column band (along y)."""
-    tp = int(round(texel_um / hf.pixel_um))
-    ny, nx = hf.shape
-    if tp < 4 or nx < 8 * tp or ny < 8 * tp:
-        raise ValueError(f"texel_um: {texel_um} µm = {tp} px texels; texture synthesis needs >= 4 px texels and "
-                         f">= 8 texels along each side of the {nx} x {ny} px height field")
-    y0, x0 = (ny // tp // 2) * tp, (nx // tp // 2) * tp
-    return hf.crop(y0, y0 + tp, 0, nx), hf.crop(0, ny, x0, x0 + tp)
-
 
 # ----------------------------------------------------------------------------- material builders
 
@@ -139,12 +39,11 @@ def make_average_material(name: str, params, color=(0.8, 0.8, 0.8)):
     Returns ``(material, GlossyParams-like dict of the node inputs, LossReport)``.
     """
     rgba = materials.check_color("color", color)
-    conv = _pc("microgeometry_material")
     try:
         maps, loss = conv.glossy_from_ellipsoid(np.asarray(params, dtype=np.float64))
     except ValueError as exc:
         raise ValueError(f"params: {exc}") from None
-    group = _deps.sibling("node_groups.microgeometry").ensure_average()
+    group = mg_groups.ensure_average()
     mat = materials.new_material(name)
     tree = mat.node_tree
     node = tree.nodes.new("ShaderNodeGroup")
@@ -184,7 +83,6 @@ def make_texture_material(name: str, texture, color=(0.8, 0.8, 0.8), scale: floa
     scale = materials.check_range("scale", scale, 1e-6, 1e6)
     if interpolation not in ("Linear", "Closest", "Cubic"):
         raise ValueError(f"interpolation must be 'Linear', 'Closest' or 'Cubic', got {interpolation!r}")
-    conv = _pc("microgeometry_material")
     try:
         imgs, loss = conv.node_textures(np.asarray(texture, dtype=np.float64))
     except ValueError as exc:
@@ -193,8 +91,7 @@ def make_texture_material(name: str, texture, color=(0.8, 0.8, 0.8), scale: floa
     tilt_img = _float_image(f"{name} tilt", imgs["tilt"])
     mat = materials.new_material(name)
     tree = mat.node_tree
-    group = _deps.sibling("node_groups.microgeometry").add_texture_nodes(tree, params_img, tilt_img, scale,
-                                                                          interpolation)
+    group = mg_groups.add_texture_nodes(tree, params_img, tilt_img, scale, interpolation)
     group.inputs["Color"].default_value = rgba
     tree.links.new(group.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
     _finish_material(mat, "microgeometry_texture")
@@ -209,8 +106,9 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
 
     Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}``.
     """
-    tables = compute_tables(filepath, pixel_um, sigma_um, wavelength_um, ndf_kind, synthesize, texture_size,
-                            texel_um, seed, progress)
+    filepath = bpy.path.abspath(filepath) if filepath.startswith("//") else filepath
+    tables = mg_tables.compute_tables(filepath, pixel_um, sigma_um, wavelength_um, ndf_kind, synthesize, texture_size,
+                                      texel_um, seed, progress)
     stem = os.path.splitext(os.path.basename(filepath))[0]
     if synthesize:
         mat, _, loss = make_texture_material(name or f"Microgeometry {stem} (texture)", tables["texture"], color,

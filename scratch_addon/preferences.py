@@ -3,16 +3,18 @@ from __future__ import annotations
 
 import bpy
 
-from . import _deps
+from ..precompute.tables import cache
 
-cache = _deps.sibling("precompute.cache")
+#: The add-on's module name as Blender knows it: the extension root package
+#: (``bl_ext.<repo>.scratch_addon`` installed, ``scratch_materials`` for TD scripts).
+ADDON_PACKAGE = __package__.rpartition(".")[0]
 
 
 def default_cache_dir() -> str:
     """The extension's per-user cache folder, or the library default outside an extension."""
-    if _deps.is_extension():
+    if ADDON_PACKAGE.startswith("bl_ext."):
         try:
-            return bpy.utils.extension_path_user(_deps.ADDON_PACKAGE, path="cache", create=True)
+            return bpy.utils.extension_path_user(ADDON_PACKAGE, path="cache", create=True)
         except (ValueError, RuntimeError, OSError):
             pass
     cache.set_cache_dir(None)
@@ -33,12 +35,12 @@ def apply_cache_dir(prefs=None) -> str:
 
 def get_prefs():
     """This add-on's preferences, or None when it was registered without addon_utils (TD scripts)."""
-    addon = bpy.context.preferences.addons.get(_deps.ADDON_PACKAGE)
+    addon = bpy.context.preferences.addons.get(ADDON_PACKAGE)
     return addon.preferences if addon is not None else None
 
 
 class ScratchAddonPreferences(bpy.types.AddonPreferences):
-    bl_idname = _deps.ADDON_PACKAGE
+    bl_idname = ADDON_PACKAGE
 
     cache_dir: bpy.props.StringProperty(
         name="Cache Folder",

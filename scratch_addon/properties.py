@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import _deps
-
-_fresnel = _deps.sibling("precompute.fresnel")
+from ..precompute.scratch import fresnel as _fresnel, profiles
 
 PROFILE_ITEMS = [
     ("quartic", "Quartic", "Symmetric quartic bowl; value = depth / width"),
@@ -90,7 +88,7 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
         if self.profile_type == "file":
             if not self.profile_file:
                 raise ValueError("profile file: choose a CSV/text file of x, height")
-            profile = _deps.sibling("precompute.profiles").from_file(bpy.path.abspath(self.profile_file))
+            profile = profiles.from_file(bpy.path.abspath(self.profile_file))
         else:
             profile = (self.profile_type, self.profile_value)
         fresnel = {"none": None, "metal": self.metal, "conductor": ("conductor", tuple(self.ior_n), tuple(self.ior_k)),

@@ -7,7 +7,8 @@ import time
 
 import bpy
 
-from . import _deps, materials
+from ..precompute.tables import exr_io
+from . import materials
 
 
 def reset_scene() -> bpy.types.Scene:
@@ -223,7 +224,6 @@ def render_array(scene, tmpdir: str, name: str = "render"):
 
     path = os.path.join(tmpdir, f"{name}.exr")
     seconds = render_to_file(scene, path)
-    exr_io = _deps.sibling("precompute.exr_io")
     channels, _ = exr_io.read_exr(path)
     keys = {k.split(".")[-1]: k for k in channels}
     rgb = np.stack([channels[keys[c]] for c in "RGB"], axis=-1)

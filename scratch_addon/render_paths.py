@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import _deps
-
-render_path = _deps.sibling("node_groups.render_path")
+from ..node_groups import render_path
 
 SWITCH_NAME = "Scratch Render Path"      # the Mix Shader
 SWITCH_GROUP_NAME = "Scratch Render Path Value"

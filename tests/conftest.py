@@ -54,8 +54,8 @@ def extension_zip() -> Path:
 @pytest.fixture(scope="session")
 def extension(extension_zip):
     """The installed, enabled extension package (``bl_ext.user_default.scratch_addon``)."""
+    import bpy  # noqa: I001 - first: Blender's own modules (addon_utils) are importable only after bpy
     import addon_utils
-    import bpy
 
     result = bpy.ops.extensions.package_install_files(filepath=str(extension_zip), repo="user_default",
                                                       enable_on_install=True)

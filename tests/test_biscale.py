@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute import cache
-from precompute.biscale import (BiscaleTile, EffectiveBRDF, brute_force_fr, effective_brdf, psnr,
-                                render_reference_fr)
-from precompute.biscale_geometry import flat_tile, groove_tile, pyramid_tile
+from scratch_materials.precompute.tables import cache
+from scratch_materials.precompute.biscale.effective import (BiscaleTile, EffectiveBRDF, brute_force_fr, effective_brdf, psnr,
+                                          render_reference_fr)
+from scratch_materials.precompute.biscale.geometry import flat_tile, groove_tile, pyramid_tile
 
 SMALL = dict(n_facets=1500, dir_res=6, normal_res=41, l_M=120)
 CT = {"model": "cook_torrance", "alpha": 0.3, "F0": (0.9, 0.6, 0.3)}
@@ -48,7 +48,7 @@ def test_flat_lambert_is_exact():
 
 def test_flat_cook_torrance_reproduces_small_scale_brdf():
     """A flat tile's effective BRDF is its small-scale BRDF at the grid nodes (pole column exact)."""
-    from precompute.biscale_brdfs import eval_material
+    from scratch_materials.precompute.biscale.brdfs import eval_material
     t = flat_tile()
     res = effective_brdf(t.vertices, t.faces, t.face_material, [CT], **SMALL)
     d = res.directions

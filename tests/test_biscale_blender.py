@@ -1,5 +1,5 @@
 """Bi-scale Blender glue: tile objects, operators (headless), errors, and a furnace render of the
-fitted closure material against its numpy twin (``precompute.biscale_fit``)."""
+fitted closure material against its numpy twin (``precompute.biscale.fit``)."""
 from __future__ import annotations
 
 import importlib
@@ -29,7 +29,7 @@ def bs(addon):
 
 
 def _geo(addon):
-    return importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale_geometry")
+    return importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
 
 
 def test_tile_object_roundtrip(addon, scene, bs):
@@ -123,8 +123,8 @@ def test_furnace_render_matches_numpy_twin(addon, scene, bs, render_dir):
 
     mat, ops = bs
     geo = _geo(addon)
-    bsm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale")
-    fitm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale_fit")
+    bsm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.effective")
+    fitm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.fit")
     g = geo.groove_tile(depth=0.4)
     mats = [{"model": "lambert", "albedo": 0.5},
             {"model": "cook_torrance", "alpha": 0.2, "F0": 0.9, "distribution": "ggx"},

@@ -1,13 +1,13 @@
-"""Closure fit of bi-scale effective BRDFs (precompute.biscale_fit): cases Cycles represents exactly
+"""Closure fit of bi-scale effective BRDFs (precompute.biscale.effective.fit): cases Cycles represents exactly
 must be recovered exactly; the Glossy-node parameter mapping must invert Cycles' own mapping."""
 import numpy as np
 import pytest
 
-from precompute import cache
-from precompute.biscale import BiscaleTile, EffectiveBRDF
-from precompute.biscale_directions import direction_grid
-from precompute.biscale_fit import ClosureFit, fit_closures, glossy_node_params, lobe_eval
-from precompute.biscale_geometry import flat_tile
+from scratch_materials.precompute.tables import cache
+from scratch_materials.precompute.biscale.effective import BiscaleTile, EffectiveBRDF
+from scratch_materials.precompute.biscale.directions import direction_grid
+from scratch_materials.precompute.biscale.fit import ClosureFit, fit_closures, glossy_node_params, lobe_eval
+from scratch_materials.precompute.biscale.geometry import flat_tile
 
 SMALL = dict(n_facets=500, dir_res=6, normal_res=41, l_M=120)
 

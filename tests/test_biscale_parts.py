@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute.biscale_brdfs import eval_material, material_lobes
-from precompute.biscale_directions import (direction_bilinear, direction_grid, direction_solid_angles,
-                                           hemi_oct_decode, hemi_oct_encode, normal_grid, normal_splat,
-                                           oct_decode, oct_encode, pole_index)
-from precompute.biscale_geometry import (flat_tile, groove_tile, heightfield_tile, pyramid_tile, rods_tile,
+from scratch_materials.precompute.biscale.brdfs import eval_material, material_lobes
+from scratch_materials.precompute.biscale.directions import (direction_bilinear, direction_grid, direction_solid_angles,
+                                           hemi_oct_decode, hemi_oct_encode, normal_grid, normal_splat, oct_decode,
+                                           oct_encode, pole_index)
+from scratch_materials.precompute.biscale.geometry import (flat_tile, groove_tile, heightfield_tile, pyramid_tile, rods_tile,
                                          sample_facets, validate_tile, woven_tile, face_geometry)
-from precompute.biscale_svd import random_projection_svd
-from precompute.biscale_visibility import visibility_matrix
+from scratch_materials.precompute.biscale.svd import random_projection_svd
+from scratch_materials.precompute.biscale.visibility import visibility_matrix
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -168,7 +168,7 @@ def test_occluder_culling_is_exact_on_closed_tiles():
     """visibility_matrix(closed=True, point_normals) only casts against back-facing triangles;
     on a closed tile it must agree with the uncull'd caster (ties on edges aside), and the
     closedness test must reject interpenetrating parts (rods) and open/flipped meshes."""
-    from precompute.biscale_geometry import is_closed_surface
+    from scratch_materials.precompute.biscale.geometry import is_closed_surface
     rng = np.random.default_rng(6)
     t = validate_tile(*heightfield_tile(rng.random((8, 8)) * 0.5))
     assert is_closed_surface(t) and is_closed_surface(validate_tile(*pyramid_tile(n_sides=5)))

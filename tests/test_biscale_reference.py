@@ -9,10 +9,10 @@ import importlib
 import numpy as np
 import pytest
 
-from osl import biscale_reference as ref
-from precompute.biscale import BiscaleTile
-from precompute.biscale_directions import direction_solid_angles, hemi_oct_decode
-from precompute.biscale_geometry import rods_tile
+from scratch_materials.osl import biscale_reference as ref
+from scratch_materials.precompute.biscale.effective import BiscaleTile
+from scratch_materials.precompute.biscale.directions import direction_solid_angles, hemi_oct_decode
+from scratch_materials.precompute.biscale.geometry import rods_tile
 
 #: an asymmetric tile (rods tilted towards +x): its albedo differs between +x, -x and +y views,
 #: so a wrong tangent frame (swapped or flipped axes) makes the furnace test fail.
@@ -155,7 +155,7 @@ def test_fit_vs_reference_studio(addon, scene, bmat, brdf, render_dir, capsys):
     measured) plus the fit error, and far below a wrong material (a plain grey diffuse: 0.73)."""
     import bpy
 
-    fitm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale_fit")
+    fitm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.fit")
     fit = fitm.fit_closures(brdf, n_lobes=3, max_nfev=20)
     r = addon.render
     sc = bpy.context.scene
@@ -193,7 +193,7 @@ def test_bake_operator_reference_mode(addon, scene, bmat):
     for c in registered:
         bpy.utils.register_class(c)
     try:
-        geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale_geometry")
+        geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
         tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
         target = addon.render.add_plane(bpy.context.scene, size=2.0)
         bpy.context.view_layer.objects.active = tile

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
-from precompute import cache, exr_io
+from scratch_materials.precompute.tables import cache, exr_io
 
 
 @pytest.fixture

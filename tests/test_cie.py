@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from precompute.cie import XYZ_TO_REC709, cmf_xyz, spectral_weights, spectrum_to_rgb, visible_wavelengths
+from scratch_materials.precompute.iridescence.cie import (XYZ_TO_REC709, cmf_xyz, spectral_weights, spectrum_to_rgb, visible_wavelengths)
 
 
 def test_ybar_peak_near_555nm_is_one():

@@ -37,11 +37,7 @@ def test_bad_arguments_exit_2_without_traceback(args, needle, tmp_path):
 
 def test_blender_style_arguments_after_double_dash(tmp_path):
     # `blender -b -P cli.py -- args` leaves Blender's own arguments before "--".
-    sys.path.insert(0, str(ROOT))
-    try:
-        from scratch_addon.cli import _script_args
-    finally:
-        sys.path.remove(str(ROOT))
+    from scratch_materials.scratch_addon.cli import _script_args  # pytest.ini puts the repository on sys.path
     argv = ["blender", "-b", "-P", CLI, "--", "--preset", "demo", "--samples", "4"]
     assert _script_args(argv) == ["--preset", "demo", "--samples", "4"]
     assert _script_args(["cli.py", "--samples", "4"]) == ["--samples", "4"]

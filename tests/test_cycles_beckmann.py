@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from precompute import cycles_beckmann as bk
-from precompute import cycles_ggx as cg
+from scratch_materials.precompute.cycles import beckmann as bk
+from scratch_materials.precompute.cycles import ggx as cg
 
 from test_cycles_ggx import U, Z, _sphere_grid  # noqa: F401  (shared quadrature and frame)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute import cycles_ggx as cg
+from scratch_materials.precompute.cycles import ggx as cg
 
 Z = np.array([0.0, 0.0, 1.0])
 U = np.array([1.0, 0.0, 0.0])
@@ -355,7 +355,7 @@ def test_beckmann_angle_tail_integral_matches_quadrature():
     # below alpha = 0.2, Gauss-Legendre above) and the saturated shortcut; tolerance 1e-7 alpha.
     from scipy import integrate, special
 
-    from precompute import cycles_beckmann as bk
+    from scratch_materials.precompute.cycles import beckmann as bk
 
     for a in [1e-4, 3e-3, 0.05, 0.19, 0.21, 0.5, 1.0]:
         sat = bk.angle_tail_integral(np.pi / 2, a)

@@ -4,11 +4,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import stats
 
-from precompute.ellipsoid_ndf import (
-    beckmann_ndf, canonical_params, ellipsoid_g1, ellipsoid_matrix, ellipsoid_ndf, ellipsoid_pdf,
-    fit_ellipsoid, fit_ggx, ggx_ndf, sample_ellipsoid,
-)
-from precompute.microgeometry import NDFTable, splat_table
+from scratch_materials.precompute.microgeometry.ellipsoid import (beckmann_ndf, canonical_params, ellipsoid_g1, ellipsoid_matrix,
+                                                ellipsoid_ndf, ellipsoid_pdf, fit_ellipsoid, fit_ggx, ggx_ndf,
+                                                sample_ellipsoid)
+from scratch_materials.precompute.microgeometry.ndf import NDFTable, splat_table
 
 PARAMS = [
     (0.3, 0.3, 0.0, 0.0, 0.0),

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from precompute import fresnel
+from scratch_materials.precompute.scratch import fresnel
 
 
 def test_shapes_and_grazing():

@@ -2,10 +2,8 @@
 import numpy as np
 import pytest
 
-from precompute.heightfield import (
-    HeightField, HeightFieldError, detilt, gaussian_surface, load_heightfield, save_heightfield,
-    spectral_slope_covariance,
-)
+from scratch_materials.precompute.microgeometry.heightfield import (HeightField, HeightFieldError, detilt, gaussian_surface,
+                                                  load_heightfield, save_heightfield, spectral_slope_covariance)
 
 
 def grid_with_nan(seed=0):

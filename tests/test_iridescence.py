@@ -4,10 +4,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import integrate
 
-from precompute.iridescence import (RGB_WAVELENGTHS_UM, Footprint, PolygonLight, SphereLight, area_density_point,
-                                    build_grid, contained_length, eta_footprint, eta_s_sq, evaluate, evaluate_mc,
-                                    footprint_reference, random_scratches, rho_footprint, scratch_coords,
-                                    scratches_from_polylines)
+from scratch_materials.precompute.iridescence.model import (RGB_WAVELENGTHS_UM, Footprint, PolygonLight, SphereLight,
+                                          area_density_point, build_grid, contained_length, eta_footprint, eta_s_sq,
+                                          evaluate, evaluate_mc, footprint_reference, random_scratches, rho_footprint,
+                                          scratch_coords, scratches_from_polylines)
 
 
 def test_eta_s_point_term_infinite_limit_and_additivity():

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from bench.iridescence_cycles import errors, flat_scene, light_center, numpy_reference, test_scratches as make_scratches
-from precompute import exr_io
-from precompute import iridescence as ir
+from scratch_materials.precompute.tables import exr_io
+from scratch_materials.precompute.iridescence import model as ir
 
 pytestmark = [pytest.mark.bpy]
 
@@ -140,8 +140,8 @@ def test_layer_on_the_scratch_svbrdf_material(addon, irid, scene):
     # works on any material, including a script node whose output is called BSDF
     im, _ = irid
     mat = addon.materials.new_material("Script base")
-    src = (importlib.import_module(addon.__name__ + "._deps").ROOT + "/osl/aniso_ggx.osl")
-    node0 = addon.osl_compile.script_node_from_source(mat.node_tree, "aniso.osl", open(src).read())
+    src = importlib.import_module(addon.__name__.rpartition(".")[0] + ".osl").read_source("aniso_ggx.osl")
+    node0 = addon.osl_compile.script_node_from_source(mat.node_tree, "aniso.osl", src)
     mat.node_tree.links.new(node0.outputs["BSDF"], mat.node_tree.nodes["Material Output"].inputs["Surface"])
     S = im.generate_scratch_set(20, seed=1)
     node = im.insert_layer(mat, S)

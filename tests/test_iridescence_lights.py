@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute.iridescence import (polygon_light_integral, polygon_light_integral_mc, sphere_cone,
-                                    sphere_light_integral, sphere_light_integral_mc)
+from scratch_materials.precompute.iridescence.model import (polygon_light_integral, polygon_light_integral_mc, sphere_cone,
+                                          sphere_light_integral, sphere_light_integral_mc)
 
 N_MC = 1 << 16   # ≥ 16k as required; scrambled Sobol → the band-limited integrand converges to ≲0.3 % (checked
 #                  against 2^20 pseudo-random samples while developing), far inside the 2 % budget.

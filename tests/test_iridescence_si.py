@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import integrate, optimize
 
-from precompute.iridescence import SI_A0, SI_B0, si, si_approx
+from scratch_materials.precompute.iridescence.model import SI_A0, SI_B0, si, si_approx
 
 
 def _si_series(x, terms=60):

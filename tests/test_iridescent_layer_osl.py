@@ -9,10 +9,10 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy import integrate, special
 
-from osl import iridescent_layer as il
-from precompute import iridescence as ir
-from precompute.iridescence import RGB_WAVELENGTHS_UM, SIGMA_UM
-from precompute.scratch_set import ScratchSet, point_segment_distance, random_scratches
+from scratch_materials.osl import iridescent_layer as il
+from scratch_materials.precompute.iridescence import model as ir
+from scratch_materials.precompute.iridescence.model import RGB_WAVELENGTHS_UM, SIGMA_UM
+from scratch_materials.precompute.iridescence.scratch_set import ScratchSet, point_segment_distance, random_scratches
 
 
 def test_constants_match_numpy_model():
@@ -26,7 +26,7 @@ def test_si_float32_twin_matches_scipy():
     err = np.abs(il.si_float32(x) - special.sici(x)[0])
     assert err.max() < 5e-6, err.max()
     # Eq. 29's approximation is 100x worse; make sure the test could tell them apart
-    from precompute.iridescence import si_approx
+    from scratch_materials.precompute.iridescence.model import si_approx
     assert np.abs(si_approx(x[:40001]) - special.sici(x[:40001])[0]).max() > 1e-3
 
 

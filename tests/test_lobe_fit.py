@@ -1,14 +1,14 @@
-"""Tests of the tilted-GGX lobe fitting of scratch BRDF slices (precompute.lobe_fit).
+"""Tests of the tilted-GGX lobe fitting of scratch BRDF slices (precompute.scratch.lobe_fit).
 
-Tables come from the real ``precompute.scratch_brdf.simulate`` (exact beam tracing); the error
+Tables come from the real ``precompute.scratch.brdf.simulate`` (exact beam tracing); the error
 metric is the relative L1 between the lobes' cone-collapsed Cycles response and the slice.
 """
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute import lobe_fit as lf
-from precompute import profiles, scratch_brdf
+from scratch_materials.precompute.scratch import lobe_fit as lf
+from scratch_materials.precompute.scratch import profiles, brdf as scratch_brdf
 
 M = 64
 
@@ -172,8 +172,8 @@ def test_jittered_fit_bounds_consistency_and_regression(quartic_table):
 
 
 def test_lobe_tables_with_jitter_conserve_energy():
-    from precompute import fresnel, scratch_lobes
-    from precompute.cycles_ggx import cone_collapse_binned_jittered
+    from scratch_materials.precompute.scratch import fresnel, lobes as scratch_lobes
+    from scratch_materials.precompute.cycles.ggx import cone_collapse_binned_jittered
 
     Mt, S, K = 32, 8, 4
     brdf = scratch_brdf.simulate(profiles.circular(0.5, segments=512), resolution=Mt,

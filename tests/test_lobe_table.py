@@ -1,4 +1,4 @@
-"""Tabulated-tilt lobes (precompute.lobe_table): a scratch BRDF slice rendered bin by bin by one
+"""Tabulated-tilt lobes (precompute.scratch.lobe_table): a scratch BRDF slice rendered bin by bin by one
 sampled narrow lobe, against independent references.
 
 - the error target of issue #4 (<= 3 % rel. L1 per slice) on quartic, circular and V-groove tables
@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute import cycles_ggx, fresnel, lobe_fit as lf, lobe_table as lt, profiles, scratch_brdf, scratch_lobes
+from scratch_materials.precompute.cycles import ggx as cycles_ggx
+from scratch_materials.precompute.scratch import (fresnel, lobe_fit as lf, lobe_table as lt, profiles, brdf as scratch_brdf, lobes as
+                                scratch_lobes)
 
 M = 64
 

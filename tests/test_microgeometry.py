@@ -3,11 +3,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute.heightfield import HeightField, gaussian_surface, spectral_slope_covariance
-from precompute.microgeometry import (
-    NDFTable, filtered_ndf, filtered_slopes, fit_beckmann, fit_ellipsoid, kirchhoff_integral_direct,
-    kirchhoff_integral_fft, kirchhoff_ndf, naive_ndf,
-)
+from scratch_materials.precompute.microgeometry.heightfield import HeightField, gaussian_surface, spectral_slope_covariance
+from scratch_materials.precompute.microgeometry.ndf import (NDFTable, filtered_ndf, filtered_slopes, fit_beckmann, fit_ellipsoid,
+                                          kirchhoff_integral_direct, kirchhoff_integral_fft, kirchhoff_ndf, naive_ndf)
 
 
 def quad_integral(ndf, n=2001):

@@ -1,8 +1,8 @@
 """Material from a height field in Blender (scratch_addon/microgeometry_ops.py, node_groups/microgeometry.py).
 
 References: the numpy pipeline run directly (filtered NDF -> ellipsoid fit), the numpy twin of
-Cycles' GGX closure (precompute.cycles_ggx: VNDF-sampled albedo, bsdf_eval) fed with the node
-group's closure frame (precompute.microgeometry_material.closure_frame), and a diffuse render that
+Cycles' GGX closure (precompute.cycles.ggx: VNDF-sampled albedo, bsdf_eval) fed with the node
+group's closure frame (precompute.microgeometry.glossy.closure_frame), and a diffuse render that
 calibrates the sun's irradiance (so no light-unit convention is assumed).
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ def mg(addon):
 
 
 def _brushed_npy(tmp_path, shape=(256, 256), pixel_um=0.5, seed=2):
-    from precompute.heightfield import gaussian_surface
+    from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
 
     hf = gaussian_surface(shape, pixel_um, 0.05, (20.0, 1.5), seed=seed)  # scratches along x
     path = tmp_path / "brushed.npy"
@@ -44,8 +44,8 @@ def _brushed_npy(tmp_path, shape=(256, 256), pixel_um=0.5, seed=2):
 def test_operator_creates_average_material_matching_numpy_pipeline(scene, mg, addon, tmp_path):
     import bpy
 
-    from precompute.microgeometry import filtered_ndf, fit_ellipsoid
-    from precompute.microgeometry_material import glossy_from_ellipsoid
+    from scratch_materials.precompute.microgeometry.ndf import filtered_ndf, fit_ellipsoid
+    from scratch_materials.precompute.microgeometry.glossy import glossy_from_ellipsoid
 
     path, hf = _brushed_npy(tmp_path)
     obj = addon.render.add_plane(scene)
@@ -127,7 +127,7 @@ def test_operator_bad_inputs_report_clear_errors(scene, mg, addon, tmp_path):
 
 
 def _twin_frame(params):
-    from precompute import microgeometry_material as mm
+    from scratch_materials.precompute.microgeometry import glossy as mm
 
     maps, _ = mm.glossy_from_ellipsoid(params)
     return mm.closure_frame(maps["roughness"], maps["anisotropy"], maps["rotation"], maps["tilt"])
@@ -135,7 +135,7 @@ def _twin_frame(params):
 
 def _twin_albedo(params, n=1_000_000, seed=0):
     """Cycles' estimator for a white world seen straight down: E[eval/pdf] over VNDF samples (twin)."""
-    from precompute import cycles_ggx as cg
+    from scratch_materials.precompute.cycles import ggx as cg
 
     N, X, au, av = _twin_frame(params)
     rng = np.random.default_rng(seed)
@@ -197,7 +197,7 @@ def _unit(v):
 
 @pytest.mark.render
 def test_sun_lit_plane_radiance_matches_twin(scene, mg, addon, render_dir):
-    from precompute import cycles_ggx as cg
+    from scratch_materials.precompute.cycles import ggx as cg
 
     up = np.array([0.0, 0.0, 1.0])
     N, X, au, av = _twin_frame(P_A)
@@ -228,7 +228,7 @@ def test_texture_material_texels_match_twin(scene, mg, addon, render_dir):
     """Left half of the texture holds lobe A, right half lobe B: each half renders as the twin predicts."""
     import bpy
 
-    from precompute import cycles_ggx as cg
+    from scratch_materials.precompute.cycles import ggx as cg
 
     up = np.array([0.0, 0.0, 1.0])
     NA, XA, auA, avA = _twin_frame(P_A)

@@ -1,19 +1,19 @@
 """Ellipsoid NDF -> Cycles Glossy parameters (precompute/microgeometry_material.py).
 
-References: the ellipsoid NDF of eq. 10 (precompute.ellipsoid_ndf, independent of the converter),
-the numpy twin of Cycles' GGX closure (precompute.cycles_ggx.bsdf_eval / ggx_aniso_D), Smith's
+References: the ellipsoid NDF of eq. 10 (precompute.microgeometry.ellipsoid, independent of the converter),
+the numpy twin of Cycles' GGX closure (precompute.cycles.ggx.bsdf_eval / ggx_aniso_D), Smith's
 Lambda written out from the ellipsoid matrix A (not from the converter's frame), and round trips.
 """
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute import cycles_ggx as cg
-from precompute import microgeometry_material as mm
-from precompute.ellipsoid_ndf import ellipsoid_matrix, ellipsoid_ndf, rotation_matrix
-from precompute.heightfield import gaussian_surface
-from precompute.microgeometry import filtered_ndf
-from precompute.ndf_synthesis import synthesize_parameter_texture
+from scratch_materials.precompute.cycles import ggx as cg
+from scratch_materials.precompute.microgeometry import glossy as mm
+from scratch_materials.precompute.microgeometry.ellipsoid import ellipsoid_matrix, ellipsoid_ndf, rotation_matrix
+from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
+from scratch_materials.precompute.microgeometry.ndf import filtered_ndf
+from scratch_materials.precompute.microgeometry.synthesis import synthesize_parameter_texture
 
 alphas = st.floats(0.01, 0.9)
 small_angle = st.floats(-0.5, 0.5)

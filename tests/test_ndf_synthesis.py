@@ -4,12 +4,11 @@ import os
 import numpy as np
 import pytest
 
-from precompute.ellipsoid_ndf import rotation_matrix
-from precompute.heightfield import HeightField, gaussian_surface
-from precompute.ndf_synthesis import (
-    CHANNELS, load_parameter_texture, save_parameter_texture, synthesize_from_strips,
-    synthesize_parameter_texture, texel_ellipsoid_params,
-)
+from scratch_materials.precompute.microgeometry.ellipsoid import rotation_matrix
+from scratch_materials.precompute.microgeometry.heightfield import HeightField, gaussian_surface
+from scratch_materials.precompute.microgeometry.synthesis import (CHANNELS, load_parameter_texture, save_parameter_texture,
+                                                synthesize_from_strips, synthesize_parameter_texture,
+                                                texel_ellipsoid_params)
 
 
 def test_texel_fits_recover_known_skew():
@@ -85,7 +84,7 @@ def test_bad_inputs(tmp_path):
     assert not os.path.exists(tmp_path / "bad.exr")  # nothing half-written
     with pytest.raises(ValueError, match="texture"):
         save_parameter_texture(tmp_path / "bad.exr", np.ones((4, 4, 3)))
-    from precompute.exr_io import write_exr
+    from scratch_materials.precompute.tables.exr_io import write_exr
     write_exr(tmp_path / "other.exr", {"R": np.zeros((2, 2), np.float32)})
     with pytest.raises(ValueError, match="missing channels"):
         load_parameter_texture(tmp_path / "other.exr")

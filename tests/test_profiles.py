@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from precompute import profiles
+from scratch_materials.precompute.scratch import profiles
 
 
 def test_quartic_formula_and_range():
@@ -83,7 +83,7 @@ def test_from_file(tmp_path):
 
 
 def test_cache_key_distinguishes_profiles():
-    from precompute.cache import content_key
+    from scratch_materials.precompute.tables.cache import content_key
     a = content_key("t", "1", {"p": profiles.quartic(0.2)})
     b = content_key("t", "1", {"p": profiles.quartic(0.2000001)})
     assert a != b and a == content_key("t", "1", {"p": profiles.quartic(0.2)})

@@ -157,14 +157,14 @@ def kinds(addon, scene, tmp_path):
     artist's operators make it, in a default (SVM) scene."""
     import bpy
 
-    from precompute.heightfield import gaussian_surface
+    from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
 
     r, api = addon.render, addon.api
     im = importlib.import_module(addon.__name__ + ".iridescence_material")
     mg = importlib.import_module(addon.__name__ + ".microgeometry_ops")
     bmat = importlib.import_module(addon.__name__ + ".biscale_material")
     bops = importlib.import_module(addon.__name__ + ".biscale_ops")
-    geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale_geometry")
+    geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
 
     grey = addon.materials.new_material("grey")
     diff = grey.node_tree.nodes.new("ShaderNodeBsdfDiffuse")

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from precompute import fresnel, profiles
-from precompute.scratch_brdf import (ScratchBRDF, bin_centres, bin_cos_integrals, bin_edges, default_supersample,
+from scratch_materials.precompute.scratch import fresnel, profiles
+from scratch_materials.precompute.scratch.brdf import (ScratchBRDF, bin_centres, bin_cos_integrals, bin_edges, default_supersample,
                                      gamma_from_slices, simulate, simulate_theta)
 
 
@@ -174,7 +174,7 @@ def test_sampling_matches_pdf():
 
 
 def test_save_load_roundtrip_and_cache(tmp_path):
-    from precompute import cache
+    from scratch_materials.precompute.tables import cache
     b = simulate(PROFILES["v_groove"], 16, fresnel.schlick([1.4, 1.5, 1.6]), split_bounces=True)
     b.save(tmp_path / "t.exr")
     c = ScratchBRDF.load(tmp_path / "t.exr")
@@ -227,7 +227,7 @@ def test_grazing_rows_come_from_reciprocity_and_keep_energy():
     """The two grazing rows at each horizon are the transposed, finely traced grazing columns (up to
     the per-column energy restoration, measured <= 0.6 % here); energy stays exact; and the rows are closer to a
     fine reference than a table without that step (measured on the steep quartic at K=2)."""
-    import precompute.scratch_brdf as sb
+    import scratch_materials.precompute.scratch.brdf as sb
 
     prof = profiles.quartic(0.5, segments=128)
     M = 64

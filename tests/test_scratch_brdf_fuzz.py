@@ -3,8 +3,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from precompute import fresnel, profiles
-from precompute.scratch_brdf import bin_cos_integrals, simulate
+from scratch_materials.precompute.scratch import fresnel, profiles
+from scratch_materials.precompute.scratch.brdf import bin_cos_integrals, simulate
 
 heights = st.lists(st.floats(-3.0, 1.0, allow_nan=False, allow_infinity=False), min_size=2, max_size=25)
 

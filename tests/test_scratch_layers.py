@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import nnls
 
-from osl import const_array
-from precompute import scratch_layers as sl
-from precompute.scratch_lobes import nnls_batched
+from scratch_materials.osl import const_array
+from scratch_materials.precompute.scratch import layers as sl
+from scratch_materials.precompute.scratch.lobes import nnls_batched
 
 
 @pytest.mark.parametrize("kwargs, needle", [

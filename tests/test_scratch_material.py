@@ -25,7 +25,7 @@ LAYERS16 = dict(n_layers=16, theta_deg=360, length=0.1, width=0.01, density=0.3)
 def _profiles(addon):
     import importlib
 
-    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.profiles")
+    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.scratch.profiles")
     rng = np.random.default_rng(7)  # a noisy "measured-like" profile with bulges above the surface
     x = np.linspace(0.0, 1.0, 41)
     h = -0.25 * np.sin(np.pi * x) ** 2 + 0.02 * rng.standard_normal(41)
@@ -240,7 +240,7 @@ def test_saved_blend_renders_identically_without_the_addon(addon, scene, render_
     env = {k: v for k, v in __import__("os").environ.items() if k != "SCRATCH_ADDON_CACHE"}
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    channels, _ = addon._deps.sibling("precompute.exr_io").read_exr(tmp_path / "farm.exr")
+    channels, _ = addon.render.exr_io.read_exr(tmp_path / "farm.exr")
     keys = {k.split(".")[-1]: k for k in channels}
     farm = np.stack([channels[keys[c]] for c in "RGB"], -1)
     assert np.allclose(farm, here, rtol=1e-5, atol=1e-6)
@@ -249,7 +249,7 @@ def test_saved_blend_renders_identically_without_the_addon(addon, scene, render_
 def _round_profile(addon):
     import importlib
 
-    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.profiles")
+    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.scratch.profiles")
     return profiles.circular(0.5, segments=64)
 
 
@@ -297,7 +297,7 @@ def test_box_lobes_only_in_the_shader_when_used(addon):
     ("measured", "gold", dict(LAYERS16, n_layers=4)),
 ])
 def test_table_lobes_match_exact_reference(addon, scene, render_dir, profile, fresnel, layers):
-    """Tabulated-tilt lobes (precompute.lobe_table) render the table slice bin by bin: the lobe path
+    """Tabulated-tilt lobes (precompute.scratch.lobe_table) render the table slice bin by bin: the lobe path
     matches the exact-table reference as closely as the noise allows (fitted lobes: 0.4-1 %)."""
     prof = _profiles(addon)[profile]
     means, blocks = {}, {}

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from precompute.scratch_set import (ScratchSet, brute_force_query, build_grid, point_segment_distance,
-                                    random_scratches, scratches_from_polylines, to_shader_arrays)
+from scratch_materials.precompute.iridescence.scratch_set import (ScratchSet, brute_force_query, build_grid, point_segment_distance,
+                                                random_scratches, scratches_from_polylines, to_shader_arrays)
 
 
 def _same(a, b):

@@ -57,7 +57,7 @@ def test_svm_box_lobes_white_furnace(addon, scene, render_dir):
     """Jittered (box) lobes on the node-group path: one tilt offset per sample shared by the summed lobes."""
     import importlib
 
-    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.profiles")
+    profiles = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.scratch.profiles")
     noises = {}
     for box in (False, True):
         mat = _material(addon, f"SVM box {box}", profile=profiles.circular(0.5, segments=64), fresnel=None,

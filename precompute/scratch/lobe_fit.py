@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cycles_ggx import (BECKMANN, BSDF_ROUGHNESS_SQ_THRESH, GGX, JitteredAtoms, cone_collapse_binned,
-                         cone_collapse_binned_jittered, dist_code)
+from ..cycles.ggx import (BECKMANN, BSDF_ROUGHNESS_SQ_THRESH, GGX, JitteredAtoms, cone_collapse_binned,
+                          cone_collapse_binned_jittered, dist_code)
 
 __all__ = ["LobeSet", "fit_lobes", "fit_table", "lobe_model", "relative_l1", "phi_bin_centres", "phi_bin_edges",
            "rows_at", "slice_centres"]

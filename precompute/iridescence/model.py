@@ -45,10 +45,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
+from ..validation import finite as _finite, positive as _positive
 from . import cie
-from .iridescence_lights import (SI_A0, SI_B0, angular_response, band_nodes, polygon_light_integral, polygon_light_integral_mc,
-                                 si, si_approx, sinc2_antiderivative, sphere_cone, sphere_light_integral,
-                                 sphere_light_integral_mc)
+from .lights import (SI_A0, SI_B0, angular_response, band_nodes, polygon_light_integral, polygon_light_integral_mc,
+                     si, si_approx, sinc2_antiderivative, sphere_cone, sphere_light_integral, sphere_light_integral_mc)
 from .scratch_set import (ScratchGrid, ScratchSet, brute_force_query, build_grid, random_scratches,
                           scratches_from_polylines, to_shader_arrays)
 
@@ -68,20 +68,6 @@ __all__ = [
 SIGMA_UM = 60.0
 #: RGB mode evaluates the model at one representative wavelength per channel (µm).
 RGB_WAVELENGTHS_UM = np.array([0.630, 0.532, 0.465])
-
-
-def _finite(name, x):
-    a = np.asarray(x, dtype=np.float64)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
-
-
-def _positive(name, x, hi=np.inf):
-    a = _finite(name, x)
-    if np.any(a <= 0.0) or np.any(a > hi):
-        raise ValueError(f"{name} must lie in (0, {hi}]")
-    return a
 
 
 # ----------------------------------------------------------------------------- per-scratch terms
@@ -443,7 +429,7 @@ def evaluate_mc(scratches: ScratchSet, uv, wo, light: SphereLight, lam_um, *, si
     """
     from scipy.stats import qmc as _qmc
 
-    from .iridescence_lights import _onb
+    from .lights import _onb
 
     uv, wo = _check_points(uv, wo)
     lam = _finite("lam_um", lam_um).reshape(-1)

@@ -30,8 +30,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares, nnls
 
-from . import cycles_ggx
-from .biscale_directions import direction_grid, direction_solid_angles
+from ..cycles.glossy import glossy_node_params  # noqa: F401 - re-export (node builders' mapping)
+
+from ..cycles import ggx as cycles_ggx
+from .directions import direction_grid, direction_solid_angles
 
 __all__ = ["GGXLobe", "ClosureFit", "lobe_frame", "lobe_eval", "fit_closures", "glossy_node_params"]
 
@@ -97,19 +99,6 @@ class ClosureFit:
     def to_dict(self) -> dict:
         return {"diffuse": [float(c) for c in self.diffuse], "lobes": [lb.to_dict() for lb in self.lobes],
                 "rel_l1": self.rel_l1, "psnr": self.psnr}
-
-
-def glossy_node_params(alpha_x: float, alpha_y: float) -> tuple[float, float]:
-    """(Roughness, Anisotropy) of a Cycles Glossy BSDF node giving (α_x along the tangent, α_y).
-
-    Inverse of ``node_glossy_bsdf.osl``: α = r², an > 0: α_x = α(1-an), α_y = α/(1-an);
-    an < 0: α_x = α/(1+an), α_y = α(1+an); |an| <= 0.99 (so α_x/α_y in [1e-4, 1e4])."""
-    for name, a in (("alpha_x", alpha_x), ("alpha_y", alpha_y)):
-        if not (np.isfinite(a) and 0 < a <= 1):
-            raise ValueError(f"{name}: expected a roughness in (0, 1], got {a!r}")
-    alpha = float(np.sqrt(alpha_x * alpha_y))
-    an = 1.0 - alpha_x / alpha if alpha_x <= alpha_y else alpha_y / alpha - 1.0
-    return float(np.sqrt(alpha)), float(np.clip(an, -0.99, 0.99))
 
 
 # ----------------------------------------------------------------------------- fitting

@@ -23,8 +23,10 @@ import numpy as np
 
 import sys
 
-from . import cache, cycles_beckmann, cycles_ggx, lobe_fit, lobe_table
-from .cycles_ggx import cone_collapse_binned, cone_collapse_binned_jittered
+from ..tables import cache
+from ..cycles import beckmann as cycles_beckmann, ggx as cycles_ggx
+from . import lobe_fit, lobe_table
+from ..cycles.ggx import cone_collapse_binned, cone_collapse_binned_jittered
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
 __all__ = ["lobe_tables", "nnls_batched", "table_lobes"]

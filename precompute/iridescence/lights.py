@@ -49,6 +49,8 @@ import numpy as np
 from scipy import special
 from scipy.stats import qmc
 
+from ..validation import finite as _finite, in_range as _in_range
+
 __all__ = [
     "si",
     "si_approx",
@@ -70,22 +72,6 @@ SI_B0 = 0.38272292
 
 
 # ----------------------------------------------------------------------------- validation
-def _finite(name: str, x) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite (got NaN or inf)")
-    return a
-
-
-def _in_range(name: str, x, lo: float, hi: float, lo_open: bool = False) -> np.ndarray:
-    a = _finite(name, x)
-    bad = (a <= lo) if lo_open else (a < lo)
-    if np.any(bad) or np.any(a > hi):
-        br = "(" if lo_open else "["
-        raise ValueError(f"{name} must lie in {br}{lo}, {hi}] (got min {a.min():.6g}, max {a.max():.6g})")
-    return a
-
-
 def _unit(name: str, v) -> np.ndarray:
     a = _finite(name, v)
     if a.shape[-1:] != (3,):

@@ -21,9 +21,9 @@ import os
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from .ellipsoid_ndf import ALPHA_MAX, ALPHA_MIN, THETA_XY_MAX, box_nodes, fit_ellipsoid_samples
+from .ellipsoid import ALPHA_MAX, ALPHA_MIN, THETA_XY_MAX, box_nodes, fit_ellipsoid_samples
 from .heightfield import as_heightfield
-from .microgeometry import NDFTable, filtered_slopes, splat_table
+from .ndf import NDFTable, filtered_slopes, splat_table
 
 __all__ = [
     "CHANNELS",
@@ -154,7 +154,7 @@ def synthesize_from_strips(strip_x, strip_y, out_shape, texel_um: float = 63.5, 
 
 def save_parameter_texture(path: str | os.PathLike, texture: np.ndarray, meta: dict | None = None) -> None:
     """Write a (H, W, 5) parameter texture as a float EXR with channels ``alpha_x ... theta_z`` (atomic)."""
-    from .exr_io import write_exr  # noqa: PLC0415
+    from ..tables.exr_io import write_exr  # noqa: PLC0415
 
     t = np.asarray(texture, dtype=np.float64)
     if t.ndim != 3 or t.shape[2] != 5 or t.shape[0] < 1 or t.shape[1] < 1:
@@ -168,7 +168,7 @@ def save_parameter_texture(path: str | os.PathLike, texture: np.ndarray, meta: d
 
 def load_parameter_texture(path: str | os.PathLike) -> tuple[np.ndarray, dict | None]:
     """Read a texture written by :func:`save_parameter_texture`; returns ``((H, W, 5), meta)``."""
-    from .exr_io import ExrError, read_exr  # noqa: PLC0415
+    from ..tables.exr_io import ExrError, read_exr  # noqa: PLC0415
 
     chans, meta = read_exr(path)
     missing = [c for c in CHANNELS if c not in chans]

@@ -153,7 +153,7 @@ def _read_text(path):
 
 
 def _read_exr(path):
-    from .exr_io import read_exr  # noqa: PLC0415 - OpenEXR only when needed
+    from ..tables.exr_io import read_exr  # noqa: PLC0415 - OpenEXR only when needed
 
     chans, meta = read_exr(path)
     for name in ("Z", "height", "heights", "Y", "R"):
@@ -234,7 +234,7 @@ def save_heightfield(path: str | os.PathLike, hf: HeightField) -> None:
         np.savez(tmp, heights=hf.heights, pixel_um=np.float64(hf.pixel_um))
         os.replace(tmp, path)
     elif suffix == ".exr":
-        from .exr_io import write_exr  # noqa: PLC0415
+        from ..tables.exr_io import write_exr  # noqa: PLC0415
 
         write_exr(path, {"Z": hf.heights.astype(np.float32)}, meta={"pixel_um": hf.pixel_um, "units": "um"})
     else:

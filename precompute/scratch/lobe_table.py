@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cycles_ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
+from ..cycles.ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
 __all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model"]

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..validation import finite as _finite
+
 __all__ = [
     "ScratchSet",
     "random_scratches",
@@ -27,13 +29,6 @@ __all__ = [
     "brute_force_query",
     "to_shader_arrays",
 ]
-
-
-def _finite(name, x):
-    a = np.asarray(x, dtype=np.float64)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
 
 
 @dataclass(frozen=True)

@@ -77,11 +77,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import cache as _cache
-from . import exr_io
+from ..tables import cache as _cache
+from ..tables import exr_io
 from .profiles import Profile
-from .scratch_beam import trace_exact
-from .scratch_mc import trace_mc
+from .beam import trace_exact
+from .mc import trace_mc
 
 __all__ = [
     "ScratchBRDF",

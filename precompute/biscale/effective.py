@@ -36,14 +36,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from . import cache as _cache
-from . import exr_io
-from .biscale_brdfs import Lobe, eval_material, material_lobes
-from .biscale_directions import (direction_bilinear, direction_grid, normal_grid,
-                                 normal_splat, pole_index)
-from .biscale_geometry import Tile, face_geometry, is_closed_surface, sample_facets, validate_tile
-from .biscale_svd import LowRank, random_projection_svd, random_projection_svd_streamed
-from .biscale_visibility import visibility_matrix
+from ..tables import cache as _cache
+from ..tables import exr_io
+from .brdfs import Lobe, eval_material, material_lobes
+from .directions import direction_bilinear, direction_grid, normal_grid, normal_splat, pole_index
+from .geometry import Tile, face_geometry, is_closed_surface, sample_facets, validate_tile
+from .svd import LowRank, random_projection_svd, random_projection_svd_streamed
+from .visibility import visibility_matrix
 
 __all__ = ["BiscaleTile", "EffectiveBRDF", "effective_brdf", "precompute_M", "brute_force_fr", "brute_force_fr_at", "psnr",
            "DEFAULTS", "render_reference_fr"]
@@ -446,7 +445,7 @@ def render_reference_fr(tile: Tile, materials, wi: np.ndarray, wo: np.ndarray, n
     (shadow ray towards ωi) and average V(ωi) f_r(n, ωi, ωo) (n·ωi)+ α.  That average is
     eq. 7's f̄r.  Independent of facet sampling, normal binning and SVD; shares only the
     ray caster.  ``wi``, ``wo`` (P, 3); returns (P, 3)."""
-    from .biscale_visibility import TorusGrid, first_hit, occluded
+    from .visibility import TorusGrid, first_hit, occluded
 
     wi = np.atleast_2d(np.asarray(wi, np.float64))
     wo = np.atleast_2d(np.asarray(wo, np.float64))

@@ -48,7 +48,7 @@ import numpy as np
 
 from scipy.special import erf
 
-from . import cycles_beckmann as _bk
+from . import beckmann as _bk
 
 __all__ = [
     "GGX",

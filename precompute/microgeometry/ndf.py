@@ -38,7 +38,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.ndimage import map_coordinates
 
-from .ellipsoid_ndf import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
+from .ellipsoid import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
 from .heightfield import HeightField, as_heightfield
 
 __all__ = [

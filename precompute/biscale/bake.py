@@ -1,0 +1,72 @@
+"""The bi-scale bake without Blender (Wu et al. 2011, §3-5): a tile and its small-scale materials ->
+the effective BRDF table, its fitted closures and the table file.
+
+``get_tile`` keeps the last few ``BiscaleTile`` objects in memory, keyed by the mesh's content hash
+and the options, so colour- and material-only edits reuse visibility and N (the fast path of §3.7);
+``bake_tables`` runs the pipeline.  ``scratch_addon.biscale_material`` reads the tile from an object,
+maps Blender materials to small-scale BRDFs and builds the node tree.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import numpy as np
+
+from ..tables import cache
+from .effective import BiscaleTile
+from .fit import fit_closures
+
+#: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
+_TILE_CACHE: dict = {}
+_TILE_CACHE_MAX = 4
+
+
+def mesh_hash(V, F, M, P) -> str:
+    """Content hash of a tile (vertices, faces, face materials, period)."""
+    h = hashlib.sha256()
+    for a in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64), np.ascontiguousarray(M, np.int64)):
+        h.update(a.tobytes())
+    h.update(repr(float(P)).encode())
+    return h.hexdigest()[:24]
+
+
+def materials_hash(materials) -> str:
+    """Deterministic hash of small-scale material dicts (the same in every session)."""
+    return hashlib.sha256(json.dumps(materials, sort_keys=True, default=float).encode()).hexdigest()[:16]
+
+
+def get_tile(V, F, M, P, color_weights=None, **opts):
+    """Cached ``BiscaleTile`` (visibility + N reused when only colours or materials change); returns
+    ``(tile, reused)``."""
+    key = (mesh_hash(V, F, M, P), tuple(sorted(opts.items())))
+    tile = _TILE_CACHE.get(key)
+    hit = tile is not None
+    if tile is None:
+        tile = BiscaleTile(V, F, M, period=P, color_weights=color_weights, **opts)
+        if len(_TILE_CACHE) >= _TILE_CACHE_MAX:
+            _TILE_CACHE.pop(next(iter(_TILE_CACHE)))
+        _TILE_CACHE[key] = tile
+    elif color_weights is not None or tile.alpha.min() != 1.0 or tile.alpha.max() != 1.0:
+        tile.set_color_weights(color_weights)  # colour edit: N only
+    return tile, hit
+
+
+def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None, **opts):
+    """Effective BRDF (eq. 8 via §3.4-3.7), its closure fit (``fit.fit_closures``) and the table saved as
+    EXR in ``exr_dir`` (default: the cache folder's ``biscale``).  ``materials``: small-scale BRDF dicts
+    (``brdfs``), one per material index.  Returns ``(brdf, fit, info)``."""
+    step = progress or (lambda f: None)
+    M = np.minimum(M, len(materials) - 1)
+    tile, reused = get_tile(V, F, M, P, **opts)
+    step(0.3)
+    brdf = tile.effective_brdf(materials)
+    step(0.7)
+    fit = fit_closures(brdf, n_lobes=n_lobes)
+    step(0.9)
+    exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
+    os.makedirs(exr_dir, exist_ok=True)
+    exr = os.path.join(exr_dir, f"biscale_{mesh_hash(V, F, M, P)}_{materials_hash(materials)}.exr")
+    brdf.save_exr(exr)
+    return brdf, fit, {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}

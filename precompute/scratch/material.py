@@ -1,0 +1,163 @@
+"""The scratch material's inputs and tables, without Blender (Raymond et al. 2016, §4-5).
+
+``validate(**params)`` checks every parameter of ``make_scratched_material`` (ValueError naming the
+parameter and its range) and returns ``ScratchParams``; ``tables(params)`` computes, through the
+content-hash cache, what every render path needs: the scratch BRDF (ρ0, ρm, γ; eq. 2), the lobe
+data of the chosen lobe shape, and the table lobes the node-group (SVM) twin renders.  The glue
+(``scratch_addon.scratch_material``) only builds node trees from these.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..validation import check_color, check_range
+from . import brdf as scratch_brdf, fresnel as fresnel_mod, layers as layers_mod, lobes, profiles
+
+#: Largest table the reference mode compiles into its shader (M x M per channel).
+REFERENCE_MAX_M = 128
+
+BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
+MODES = ("lobes", "reference")
+BACKENDS = ("osl", "svm")
+#: "fit": <= K fitted tilted lobes; "box": fitted lobes with a tilt jitter each; "table": tabulated-tilt
+#: lobes (precompute.lobe_table: the slice sampled bin by bin, exact, no fit; the default)
+LOBE_SHAPES = ("fit", "box", "table")
+
+
+@dataclass
+class ScratchParams:
+    """Validated inputs of ``make_scratched_material`` (see ``api.make_scratched_material``)."""
+
+    profile: object
+    fresnel: object
+    layers: object  # LayerParams or None (dense)
+    lobes: int
+    base: dict
+    mode: str
+    resolution: int
+    slices: int
+    tint: tuple
+    diffuse: object = None  # None, an RGB colour or "wood": a Lambertian term added to the whole material
+    backend: str = "osl"    # "osl" (CPU/OptiX, footprint-filtered α, hash-picked lobes) or "svm" (GPU/EEVEE)
+    lobe_shape: str = "table"  # one of LOBE_SHAPES
+
+    @property
+    def box_lobes(self) -> bool:
+        return self.lobe_shape == "box"
+
+
+def _as_layers(layers):
+    if layers is None or isinstance(layers, layers_mod.LayerParams):
+        return layers
+    if isinstance(layers, dict):
+        try:
+            return layers_mod.LayerParams(**layers)
+        except TypeError as exc:
+            raise ValueError(f"layers: {exc}") from None
+    if isinstance(layers, (int,)) and not isinstance(layers, bool):
+        return layers_mod.LayerParams(n_layers=layers)
+    raise ValueError(f"layers must be None (dense), an int (count), a dict or a LayerParams; got {layers!r}")
+
+
+def _as_base(base) -> dict:
+    if isinstance(base, str):
+        base = {"type": base}
+    if not isinstance(base, dict) or base.get("type") not in BASE_TYPES:
+        raise ValueError(f"base must be one of {', '.join(BASE_TYPES)} (or a dict with 'type'); got {base!r}")
+    out = dict(base)
+    if "color" in out:
+        out["color"] = check_color("base color", out["color"])
+    if "roughness" in out:
+        out["roughness"] = check_range("base roughness", out["roughness"], 0.0, 1.0)
+    return out
+
+
+def _as_profile(profile):
+    if isinstance(profile, (tuple, list)) and len(profile) == 2 and isinstance(profile[0], str):
+        family = getattr(profiles, profile[0], None)
+        if family is None or profile[0] not in ("quartic", "v_groove", "circular"):
+            raise ValueError(f"profile family must be quartic, v_groove or circular; got {profile[0]!r}")
+        return family(profile[1])
+    return profile
+
+
+def _as_fresnel(fresnel):
+    if fresnel is None or isinstance(fresnel, fresnel_mod.Fresnel):
+        return fresnel
+    if isinstance(fresnel, str):
+        return fresnel_mod.conductor_preset(fresnel)
+    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 2 and fresnel[0] == "schlick":
+        return fresnel_mod.schlick(fresnel[1])
+    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 3 and fresnel[0] == "conductor":
+        return fresnel_mod.conductor(fresnel[1], fresnel[2])
+    raise ValueError("fresnel must be None (lossless), a metal name, ('schlick', ior), ('conductor', n, k) "
+                     f"or a precompute.fresnel model; got {fresnel!r}")
+
+
+def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mode="lobes", resolution=256,
+             slices=64, tint=(1.0, 1.0, 1.0), diffuse=None, backend="osl", box_lobes=False,
+             lobe_shape=None) -> ScratchParams:
+    """Check every parameter; raise ValueError naming the parameter and its allowed range."""
+    profile = profiles.quartic(0.2) if profile is None else _as_profile(profile)
+    if not isinstance(profile, profiles.Profile):
+        raise ValueError(f"profile must be a precompute.profiles profile (quartic, v_groove, tabulated...); got {profile!r}")
+    fresnel = _as_fresnel(fresnel)
+    if isinstance(lobes, bool) or not isinstance(lobes, int) or not 1 <= lobes <= 16:
+        raise ValueError(f"lobes must be an integer in [1, 16], got {lobes!r}")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if mode == "reference" and resolution > REFERENCE_MAX_M:
+        raise ValueError(f"resolution must be <= {REFERENCE_MAX_M} in reference mode "
+                         f"(the exact table is compiled into the shader); got {resolution}")
+    if resolution not in (64, 128, 256, 512):
+        raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
+    if slices not in (16, 32, 64, 128) or slices > resolution:
+        raise ValueError(f"slices must be one of 16, 32, 64, 128 and <= resolution; got {slices!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
+    if backend == "svm" and mode != "lobes":
+        raise ValueError("mode must be 'lobes' with backend 'svm' (the reference mode needs OSL)")
+    if not isinstance(box_lobes, bool):
+        raise ValueError(f"box_lobes must be True or False, got {box_lobes!r}")
+    if lobe_shape is None:  # default: the exact table lobes, on both backends
+        lobe_shape = "box" if box_lobes else "table"
+    if lobe_shape not in LOBE_SHAPES:
+        raise ValueError(f"lobe_shape must be one of {', '.join(LOBE_SHAPES)}; got {lobe_shape!r}")
+    if box_lobes and lobe_shape != "box":
+        raise ValueError(f"box_lobes=True contradicts lobe_shape={lobe_shape!r} (use lobe_shape='box')")
+    rgba = check_color("tint", tint)
+    if diffuse is not None and diffuse != "wood":
+        diffuse = check_color("diffuse", diffuse)[:3]
+    return ScratchParams(profile, fresnel, _as_layers(layers), lobes, _as_base(base), mode, resolution, slices,
+                         rgba[:3], diffuse, backend, lobe_shape)
+
+
+def lobe_data(params: ScratchParams, brdf) -> dict:
+    """Lobe tables for ``params`` (cached): tabulated-tilt lobes, or <= K fitted (plain / box) lobes."""
+    if params.lobe_shape == "table":
+        return lobes.table_lobes(brdf, slices=params.slices)
+    # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
+    return lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
+                                     dists="ggx" if params.backend == "svm" else "auto", jitter=params.box_lobes)
+
+
+def fit_error(lobe_data: dict) -> float:
+    """Worst per-slice rel. L1 error of ``lobe_data`` (fitted or table lobes) against ρ cos."""
+    if "cdf" in lobe_data:
+        errs = [lobe_data["error_m"]] + ([] if lobe_data.get("error_0") is None else [lobe_data["error_0"]])
+    else:
+        errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
+    return float(max(np.max(e) for e in errs))
+
+def tables(params: ScratchParams) -> dict:
+    """Every table ``params`` renders with (cached by content hash): ``brdf`` (ScratchBRDF), ``lobes``
+    (lobe data of ``params.lobe_shape``; None in reference mode) and ``svm_lobes`` (what the
+    node-group twin renders: the same data for table lobes or the SVM backend, else table lobes)."""
+    brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    data = lobe_data(params, brdf) if params.mode == "lobes" else None
+    svm = data if data is not None and (params.backend == "svm" or params.lobe_shape == "table") else None
+    if svm is None:  # the SVM twin of fitted (per-lobe GGX/Beckmann) or reference shaders: table lobes
+        svm = lobes.table_lobes(brdf, slices=params.slices)
+    return {"brdf": brdf, "lobes": data, "svm_lobes": svm}
