@@ -5,7 +5,7 @@ VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench build venv clean-venv
+.PHONY: demo test bench build build-dev venv clean-venv
 .DEFAULT_GOAL := demo
 
 $(STAMP): requirements.txt
@@ -30,10 +30,16 @@ BLENDER_EXT = $(VPY) -c "import importlib.util as u, pathlib as p, runpy, sys; \
 	cli = sorted(p.Path(u.find_spec('bpy').origin).parent.glob('*/scripts/addons_core/bl_pkg/cli/blender_ext.py'))[-1]; \
 	sys.argv = ['blender_ext.py'] + sys.argv[1:]; runpy.run_path(str(cli), run_name='__main__')"
 
+# One zip per platform (linux-x64, windows-x64, macos-arm64, macos-x64) with the `# bundled` pins of
+# requirements.txt as wheels (cached in wheels/); each is validated and checked; prints name and size.
 build: $(STAMP)
+	$(VPY) build.py --output-dir dist
+
+# The plain zip without wheels (for a Blender whose Python already has scipy and OpenEXR).
+build-dev: $(STAMP)
 	mkdir -p dist
 	$(BLENDER_EXT) build --source-dir . --output-dir dist
-	$(BLENDER_EXT) validate dist/scratch_addon-*.zip
+	$(BLENDER_EXT) validate dist/scratch_addon-$$(sed -n 's/^version = "\(.*\)"/\1/p' blender_manifest.toml).zip
 
 clean-venv:
 	rm -rf $(VENV)
