@@ -28,7 +28,7 @@ def make_material(preset: str, **overrides) -> bpy.types.Material:
 
 def make_scratched_material(preset: str | None = None, *, name: str | None = None, material=None,
                             progress=None, **params) -> bpy.types.Material:
-    """The scratch SV-BRDF material of Raymond et al. 2016 (OSL; Cycles CPU/OptiX).
+    """The scratch SV-BRDF material of Raymond et al. 2016; it renders in any scene as it is.
 
     ``preset``: a scratch preset name (``preset_names()``) whose parameters ``params`` override.
     ``params``:
@@ -52,6 +52,10 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
                   exact table through ray_portal_bsdf; no NEE and lamps are not seen, use world light)
       resolution  scratch-BRDF table size M (64/128/256/512), slices φo slices in the shader
       tint        RGB multiplier of the scratch reflectance; diffuse: None, RGB or "wood"
+      backend     "osl" (default): the OSL shader where Cycles runs OSL on the CPU (scratch coverage
+                  filtered over the pixel footprint) and its node-group twin everywhere else (Cycles
+                  SVM, the default and the GPU path, and EEVEE), picked per scene by a switch that
+                  needs no add-on at render time; "svm": the node groups only
     ``material``: rebuild this material in place instead of creating one.  Bad values raise
     ``ValueError`` naming the parameter and its allowed range.
     """
