@@ -23,18 +23,19 @@ def _import_api():
     if __package__:
         from . import api  # imported as <root>.scratch_addon.cli (bl_ext.<repo>.scratch_addon or scratch_materials)
         return api
-    # Run as a script (``blender -b -P scratch_addon/cli.py``): load the extension root package by its
-    # file, under its TD name, instead of putting the repository on sys.path (no top-level precompute).
-    root = sys.modules.get("scratch_materials")
-    if root is None:
+    # Run as a script (``blender -b -P scratch_addon/cli.py``, from the repository or an installed
+    # extension folder): load the extension root package from its own __init__.py under the TD name,
+    # instead of putting its folder on sys.path (which would expose a top-level ``precompute``).
+    if "scratch_materials" not in sys.modules:
         import importlib.util
 
         here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        spec = importlib.util.spec_from_file_location("scratch_materials", os.path.join(here, "scratch_materials.py"))
+        spec = importlib.util.spec_from_file_location("scratch_materials", os.path.join(here, "__init__.py"),
+                                                      submodule_search_locations=[here])
         root = importlib.util.module_from_spec(spec)
         sys.modules["scratch_materials"] = root
         spec.loader.exec_module(root)
-    from scratch_materials.scratch_addon import api
+    from scratch_materials.scratch_addon import api  # noqa: E402 - the root package loaded above
     return api
 
 
