@@ -96,13 +96,13 @@ def test_lobe_shape_from_the_panel_builds_table_lobes(addon, scene):
     s = mat.scratch
     assert s.lobe_shape == "table"
     src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
-    assert "table_lobes(" in src and "pick_lobe" not in src
+    assert "#define LOBE_TABLE 1" in src   # tabulated-tilt lobes compiled (osl/scratch_svbrdf.osl)
     assert mat["scratch_addon_fit_error"] < 0.03
     s.lobe_shape, s.resolution = "fit", "64"
     with bpy.context.temp_override(material=mat):
         assert bpy.ops.scratch.update_material() == {"FINISHED"}
     src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
-    assert "pick_lobe(" in src and "table_lobes" not in src
+    assert "#define LOBE_TABLE 0" in src and "#define LOBE_SUM 0" in src   # one picked fitted lobe
     assert mat.scratch.to_params()["lobe_shape"] == "fit"
     mat.scratch.from_params({"box_lobes": True})        # settings stored before lobe_shape existed
     assert mat.scratch.lobe_shape == "box"

@@ -5,7 +5,7 @@
 - the lobe path against the exact-table reference mode (``ray_portal_bsdf`` importance sampling);
 - light sampling (NEE + MIS) against BSDF sampling only;
 - multi-scale: footprint-filtered α against α replaced by its mean (far field);
-- the generated shader contains only the features used; bad input gives clear errors;
+- the compiled shader contains only the features used; bad input gives clear errors;
 - a saved .blend renders identically in a fresh process without the add-on (farm-ready).
 """
 from __future__ import annotations
@@ -163,22 +163,43 @@ def test_distant_view_converges_to_mean_alpha(addon, scene, render_dir, distance
     assert rel.max() < 0.03, (means, rel)
 
 
+def _compiled_names(src: str) -> set:
+    """Variables, constants and called functions of ``src`` compiled by Blender's oslc (the generated
+    text holds every feature behind #if; this is what OSL's preprocessor kept)."""
+    from osl.compiler import compile_source, oso_symbols
+
+    return oso_symbols(compile_source(src))
+
+
 @pytest.mark.parametrize("shape, rho0_array", [("fit", "L0_W"), ("table", "TB_W0")])
 def test_generated_shader_has_only_used_features(addon, shape, rho0_array):
+    # The generated text holds every feature behind #if (osl/scratch_svbrdf.osl): check what OSL's
+    # preprocessor kept, i.e. the compiled shader -- its sockets, variables, called functions and the
+    # source lines it echoes -- with Blender's own compiler.
+    from osl.compiler import compile_source, oso_params, oso_symbols
+
     sm = addon.scratch_material
     prof = _profiles(addon)["quartic"]
     kw = dict(resolution=64, slices=16, lobe_shape=shape)
-    dense = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, **kw))
-    assert "node_voronoi.h" not in dense and rho0_array not in dense and "closure color Base" not in dense
-    assert "point UV" not in dense and "Voronoi" not in dense and "disk_overlap" not in dense
-    colour = sm.shader_source(sm.validate(profile=prof, fresnel="gold", layers=LAYERS16, **kw))
-    assert "node_voronoi.h" in colour and rho0_array in colour and "closure color Base" in colour
+
+    def compiled(**params):
+        src = sm.shader_source(sm.validate(profile=prof, **kw, **params))
+        oso = compile_source(src)
+        return src, oso, oso_params(oso), oso_symbols(oso)
+
+    src, dense, params, names = compiled(fresnel=None, layers=None)
+    assert "#define LAYERS 0" in src and "#define LOSSLESS 1" in src
+    assert "node_voronoi.h" not in dense and "node_hash.h" not in dense and "hash_int2_to_vector2" not in names
+    assert rho0_array not in names and "Base" not in params and "UV" not in params and "disk_overlap" not in names
+    src, colour, params, names = compiled(fresnel="gold", layers=LAYERS16)
+    assert "hash_int2_to_vector2" in names and "disk_overlap" in names   # Voronoi cells (eq. 3)
+    assert rho0_array in names and "Base" in params and "UV" in params
     assert "h_pick * alpha_sum" in colour  # 16 layers: one picked per shading point
-    few = sm.shader_source(sm.validate(profile=prof, fresnel="gold", layers=dict(LAYERS16, n_layers=2),
-                                       base="none", **kw))
-    assert "h_pick * alpha_sum" not in few and "closure color Base" not in few
-    other = {"fit": ("table_lobes(", "TB_"), "table": ("pick_lobe(", "LM_")}[shape]
-    assert not any(x in colour for x in other)   # only the chosen lobe representation is emitted
+    _, few, params, _ = compiled(fresnel="gold", layers=dict(LAYERS16, n_layers=2), base="none")
+    assert "h_pick * alpha_sum" not in few and "Base" not in params and "UV" in params
+    other = {"fit": ("table_lobes", "TB_"), "table": ("pick_lobe", "LM_")}[shape]
+    assert not any(x in colour for x in other)   # only the chosen lobe representation is compiled
+    assert shape == "fit" or "table_lobes" in names
 
 
 @pytest.mark.parametrize("params, needle", [
@@ -285,7 +306,9 @@ def test_box_lobes_only_in_the_shader_when_used(addon):
     plain = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16))
     box = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
                                        box_lobes=True))
-    assert "h_jit" not in plain and "_JIT" not in plain
+    assert "#define JITTERED 0" in plain and "#define JITTERED 1" in box
+    plain, box = _compiled_names(plain), _compiled_names(box)   # what the preprocessor kept
+    assert "h_jit" not in plain and not any("_JIT" in x for x in plain)
     assert "h_jit" in box and "LM_JIT" in box
     with pytest.raises(ValueError, match="box_lobes"):
         sm.validate(profile=prof, box_lobes="yes")
@@ -306,7 +329,7 @@ def test_table_lobes_match_exact_reference(addon, scene, render_dir, profile, fr
                         **({"lobe_shape": "table"} if mode == "lobes" else {}))
         if mode == "lobes":
             src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
-            assert "table_lobes(" in src and "TB_CDF" in src and "pick_lobe" not in src
+            assert "#define LOBE_TABLE 1" in src and "TB_CDF" in src
             _scene(addon, scene, mat, world="studio", samples=128)
         else:
             scene.objects["Torus"].data.materials[0] = mat
@@ -341,8 +364,10 @@ def test_table_lobes_parameters(addon):
     prof = _round_profile(addon)
     src = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
                                        lobe_shape="table"))
-    assert "TB_W0" not in src and "TB_GAM" not in src     # lossless: no rho_0 / gamma arrays
-    assert "pick_lobe" not in src and "h_jit" not in src
+    assert "#define LOSSLESS 1" in src and "#define LOBE_TABLE 1" in src
+    names = _compiled_names(src)                           # what the preprocessor kept
+    assert "TB_W0" not in names and "TB_GAM" not in names  # lossless: no rho_0 / gamma arrays
+    assert "pick_lobe" not in names and "h_jit" not in names and "table_lobes" in names
     assert sm.validate(profile=prof, box_lobes=True).lobe_shape == "box"
     assert sm.validate(profile=prof).lobe_shape == "table"                  # the default: exact
     assert sm.validate(profile=prof, backend="svm").lobe_shape == "table"

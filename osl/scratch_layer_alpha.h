@@ -1,0 +1,70 @@
+// scratch_layer_alpha.h -- statements computing the coverage alpha[k] of every scratch layer
+// (Raymond et al. 2016, eq. 3 over the ray footprint, layers by eq. 7); included inside the body of
+// scratch_svbrdf.osl and scratch_reference.osl after scratch_frame.h.
+// Needs: parameters UV, Length, Width, Density, output Alpha; tables THETA_K[NL], XI_K[2 NL], COV,
+// COV_DMAX; NL and ALPHA_CULL defined; disk_overlap (scratch_layers.h) and Cycles' node_voronoi.h.
+// Declares: alpha[NL], alpha_sum (= sum_k alpha_k, also written to Alpha).
+
+    // UV and its footprint. Cycles' ray differentials are isotropic (no foreshortening), so the
+    // footprint is stretched by 1/cos(view) along the view direction projected into the surface.
+    point uvw = UV;
+    float r_uv = max(max(length(Dx(uvw)), length(Dy(uvw))), 1e-9);
+    float cos_v = max(abs(dot(wo, n)), 0.05);
+    float pv_t = dot(wo, t), pv_b = dot(wo, b);
+    float pv_len = hypot(pv_t, pv_b);
+    if (pv_len < 1e-6) { pv_t = 1.0; pv_b = 0.0; pv_len = 1.0; }
+    pv_t /= pv_len; pv_b /= pv_len;
+    // Ellipse semi-axes in UV: a1 across the view (r_uv), a2 along it (r_uv / cos).
+    float a1u = -pv_b * r_uv, a1v = pv_t * r_uv;
+    float a2u = pv_t * r_uv / cos_v, a2v = pv_b * r_uv / cos_v;
+
+    float d = clamp(Density, 0.0, 1.0);
+    float cbar;  // mean coverage c̄(d) (precompute.scratch_layers.mean_coverage), linear interpolation
+    {
+        float x = d / COV_DMAX * (arraylength(COV) - 1);
+        int i0 = min((int)floor(x), arraylength(COV) - 2);
+        cbar = mix(COV[i0], COV[i0 + 1], x - i0);
+    }
+    float inv_l = 1.0 / max(Length, 1e-9), inv_w = 1.0 / max(Width, 1e-9);
+    float alpha[NL];
+    float alpha_sum = 0.0;
+    for (int k = 0; k < NL; k++) {
+        float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
+        // y = diag(l, w)^-1 R(Θk) (u, v) + ξk  (eq. 7, rotation first: see scratch_svbrdf.osl)
+        vector2 y = vector2((ck * uvw[0] + sk * uvw[1]) * inv_l + XI_K[2 * k],
+                            (-sk * uvw[0] + ck * uvw[1]) * inv_w + XI_K[2 * k + 1]);
+        // footprint semi-axes in noise space
+        float e1x = (ck * a1u + sk * a1v) * inv_l, e1y = (-sk * a1u + ck * a1v) * inv_w;
+        float e2x = (ck * a2u + sk * a2v) * inv_l, e2y = (-sk * a2u + ck * a2v) * inv_w;
+        float spread = max(hypot(e1x, e1y), hypot(e2x, e2y));
+        float fade = smoothstep(0.2, 0.8, spread);  // footprint spans cells: converge to c̄(d)
+        float a = cbar;
+        if (fade < 1.0) {
+            // α over a disk footprint of radius R = spread: the disk-disk overlap with each
+            // scratch disk [F1 <= d] of the 3x3 Voronoi cells (Cycles' node_voronoi.h feature
+            // points), combined as a union. Exact in the sharp limit and mean-preserving.
+            float R = max(spread, 1e-6);
+            vector2 cell_f = vector2(floor(y.x), floor(y.y));
+            int2 cell = vec2_to_int2(cell_f);
+            float miss = 1.0;
+            float fx = y.x - cell_f.x, fy = y.y - cell_f.y;  // position inside the cell
+            float reach = d + R;
+            for (int j = -1; j <= 1; j++) {
+                // distance from y to the neighbour cell's box: a cell farther than d + R cannot hold
+                // a feature point whose disk meets the footprint, so it is skipped before hashing
+                float by = (j < 0) ? fy : ((j > 0) ? 1.0 - fy : 0.0);
+                if (by >= reach) continue;
+                for (int i = -1; i <= 1; i++) {
+                    float bx = (i < 0) ? fx : ((i > 0) ? 1.0 - fx : 0.0);
+                    if (bx * bx + by * by >= reach * reach) continue;
+                    int2 off = {i, j};
+                    vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
+                    miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
+                }
+            }
+            a = mix(1.0 - miss, cbar, fade);
+        }
+        alpha[k] = (a < ALPHA_CULL) ? 0.0 : a;  // layer culling (§6.1)
+        alpha_sum += alpha[k];
+    }
+    Alpha = alpha_sum;

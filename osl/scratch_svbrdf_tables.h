@@ -1,0 +1,41 @@
+// scratch_svbrdf_tables.h -- DEFAULT constant tables of scratch_svbrdf.osl: a tiny made-up material
+// (2 phi_o slices, one lobe or 2 aim bins per slice) so that the .osl file compiles on its own with
+// any flags.  osl/scratch_svbrdf.py replaces this include by the material's tables (same names).
+// Declarations inside the shader body (OSL has no file-scope variables).
+
+#if LOBE_TABLE
+    float TB_CDF[6] = {0, 0.5, 1, 0, 0.5, 1};
+    float TB_TOT[2] = {0.9, 0.9};
+    float TB_WM[4] = {0.45, 0.45, 0.45, 0.45};
+#if !LOSSLESS
+    float TB_W0[12] = {0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4};
+    float TB_GAM[4] = {1, 1, 1, 1};
+#endif
+#else
+    int LM_START[3] = {0, 1, 2};
+    int LM_DIST[2] = {0, 1};
+    float LM_TILT[2] = {-0.3, 0.3};
+    float LM_AY[2] = {0.1, 0.1};
+    float LM_W[6] = {0.9, 0.9, 0.9, 0.9, 0.9, 0.9};
+    float LM_GAMMA[2] = {1, 1};
+#if JITTERED
+    float LM_JIT[2] = {0.05, 0.05};
+#endif
+#if !LOSSLESS
+    int L0_START[3] = {0, 1, 2};
+    int L0_DIST[2] = {0, 0};
+    float L0_TILT[2] = {-0.3, 0.3};
+    float L0_AY[2] = {0.1, 0.1};
+    float L0_W[6] = {0.8, 0.8, 0.8, 0.8, 0.8, 0.8};
+    float L0_GAMMA[2] = {1, 1};
+#if JITTERED
+    float L0_JIT[2] = {0.05, 0.05};
+#endif
+#endif
+#endif
+#if LAYERS
+    float THETA_K[1] = {0};
+    float XI_K[2] = {0.1, -0.2};
+    float COV[3] = {0, 0.5, 1};
+    float COV_DMAX = 1.5;
+#endif
