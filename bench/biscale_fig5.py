@@ -5,7 +5,7 @@ Four small-scale tiles with the same isotropic Cook-Torrance metal (α = 0.2, as
 a random bumpy height field (isotropic), grooves along y (anisotropic), a raised 4-sided pyramid
 (4-way) and a 5-sided pyramid (5-way, "no existing BRDF model can represent this").  Each tile is
 baked to its effective BRDF (10K facets, dir_res 10) and fitted with Cycles closures
-(``precompute.biscale_fit``, diffuse + 4 GGX lobes); the same UV-mapped torus (tangent around the
+(``precompute.biscale.fit``, diffuse + 4 GGX lobes); the same UV-mapped torus (tangent around the
 ring) is rendered under the studio world + a small area light.  ``--reference`` adds a second row
 rendered with the exact reference mode (``osl.biscale_reference``; OSL, no light sampling: the area
 light is reached only by sampled rays, made camera-visible for them, so its highlight is noisier).

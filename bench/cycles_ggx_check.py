@@ -1,4 +1,4 @@
-"""Validate the numpy Cycles twin (precompute.cycles_ggx / cycles_beckmann) against real Cycles renders.
+"""Validate the numpy Cycles twin (precompute.cycles.ggx / cycles_beckmann) against real Cycles renders.
 
 Scene: a flat plane (z = 0, scratch direction u = x, v = y), a uniform white world (radiance 1),
 an orthographic camera looking at the plane from the view angle phi_o (in the v-n plane), and

@@ -10,7 +10,7 @@ and report the per-slice relative L1 error (median, p95, max), mean lobes used a
 both (column ``jitter``; ``box_frac`` = fraction of the used lobes with a jitter).
 ``--profiles``: only these profile names.
 ``--quick``: M = 64, S = 32, K in {1, 4, 8}, two profiles, "auto" only.
-Rows with dists = "table": tabulated-tilt lobes (``precompute.lobe_table``), for comparison (``--no-table``: skip).
+Rows with dists = "table": tabulated-tilt lobes (``precompute.scratch.lobe_table``), for comparison (``--no-table``: skip).
 """
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def main(argv) -> int:
                     help="tilt-jittered (box) lobes: off, on or both")
     ap.add_argument("--profiles", nargs="+", default=None, help="only these profiles (names as in the table)")
     ap.add_argument("--no-table", dest="table", action="store_false",
-                    help="skip the tabulated-tilt lobes (precompute.lobe_table) rows")
+                    help="skip the tabulated-tilt lobes (precompute.scratch.lobe_table) rows")
     ap.add_argument("--only-table", action="store_true",
                     help="only the tabulated-tilt lobes rows (report bench/out/lobe_table.md)")
     a = ap.parse_args(argv)
@@ -95,7 +95,7 @@ def main(argv) -> int:
         tables = [("rho_m", rm), ("rho0_mean", r0.mean(-1) if r0.ndim == 3 else r0)]
         for tname, table in tables:
             if a.table:
-                # tabulated-tilt lobes (precompute.lobe_table): no fit, one sampled closure
+                # tabulated-tilt lobes (precompute.scratch.lobe_table): no fit, one sampled closure
                 t0 = time.perf_counter()
                 _w, e, _A = lobe_table.fit_bins(lobe_fit.rows_at(table, phi_o), phi_o)
                 rows.append([name, tname, "table", "-", 1, float(np.median(e)), float(np.percentile(e, 95)),
@@ -121,7 +121,7 @@ def main(argv) -> int:
                  "cycles_ggx.cone_collapse_binned_jittered); box_frac = fraction of used lobes with j > 0. "
                  "Fit time on 2 shared cores. Render cost per K: see bench/out/osl_vs_svm.md "
                  "(8 OSL lobes ~ +45 % over 1 lobe). dists = table: tabulated-tilt lobes "
-                 "(precompute.lobe_table: the slice sampled bin by bin by one narrow lobe; K = 1 closure, no fit; "
+                 "(precompute.scratch.lobe_table: the slice sampled bin by bin by one narrow lobe; K = 1 closure, no fit; "
                  "fit_s = weights + atoms).")
     plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(12, 4.5))

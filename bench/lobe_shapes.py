@@ -3,7 +3,7 @@
 The demo-like scene (torus, studio world, small area light; quartic 0.3 with iron Fresnel, 4 layers,
 mirror base) rendered with each lobe shape at 4..256 spp.  Error = relative RMSE of the image
 against a 4096-spp render with tabulated-tilt lobes (exact in expectation to < 0.1 % rel. L1 per
-slice, ``precompute.lobe_table``, and matched to the ``reference`` mode in the tests), plus the
+slice, ``precompute.scratch.lobe_table``, and matched to the ``reference`` mode in the tests), plus the
 relative difference of the image mean.  ``--scene world`` (dense scratches, studio world only, M = 128) uses the
 exact-table ``reference`` mode as the truth instead: independent of every lobe shape (it cannot
 see lamps, hence no lamp in that scene).  Fitted lobes converge to their fit error (a bias); table

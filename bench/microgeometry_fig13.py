@@ -2,7 +2,7 @@
 
     python -m bench microgeometry_fig13 [--quick] [--res 480 320] [--spp 64]
 
-A synthetic brushed height field (numpy generators of precompute.heightfield: a Gaussian surface
+A synthetic brushed height field (numpy generators of precompute.microgeometry.heightfield: a Gaussian surface
 with long correlation along x, its scratch depth modulated by a second, slow Gaussian field) is
 saved as .npy and turned into two materials through the add-on's own path
 (``scratch_addon.microgeometry_ops.material_from_heightfield``): (a) the ellipsoid fit to the

@@ -1,12 +1,12 @@
 """Bi-scale fitted lobe (SVM, GPU-safe): one Cycles GGX Glossy BSDF with a tilted normal and a
 rotated tangent in the surface frame of the active UV map (Wu et al. 2011, large-scale material
-approximated as in ``precompute.biscale_fit``).
+approximated as in ``precompute.biscale.fit``).
 
 Frame: u = UV tangent made orthogonal to the shading normal n, v = n x u.
 Closure normal N = cos(Tilt) n + sin(Tilt) (cos(Tilt Azimuth) u + sin(Tilt Azimuth) v),
 tangent T = cos(Tangent Azimuth) u + sin(Tangent Azimuth) v (angles in radians).
 Roughness / Anisotropy follow the Glossy node's own mapping (see
-``precompute.biscale_fit.glossy_node_params``).  Materials using tilted lobes must have
+``precompute.biscale.fit.glossy_node_params``).  Materials using tilted lobes must have
 ``use_bump_map_correction`` off (it rotates tilted normals back toward Ng).
 """
 from __future__ import annotations

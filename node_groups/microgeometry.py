@@ -1,6 +1,6 @@
 """Ellipsoid-NDF lobes (Dong et al. 2015, §8-9) as Glossy BSDF node groups (SVM: GPU-safe, no OSL).
 
-Both groups build the closure frame of :func:`precompute.microgeometry_material.closure_frame`:
+Both groups build the closure frame of :func:`precompute.microgeometry.glossy.closure_frame`:
 
 * surface frame from the active UV map: ``T0`` (Tangent node, UV_MAP), ``N`` (Geometry normal),
   ``B0 = normalize(N x T0)``, ``T0 = B0 x N`` (re-orthogonalised);

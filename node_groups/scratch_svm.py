@@ -13,7 +13,7 @@ Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
   per lobe) read with Closest interpolation; the φo slice is picked stochastically between the
   two nearest rows, as in OSL; jittered (box) lobes share one tilt offset per sample (the OSL
   path jitters only the picked lobe: the same expectation);
-- tabulated-tilt lobes (``precompute.lobe_table``, the default) are one Glossy node: the bin is
+- tabulated-tilt lobes (``precompute.scratch.lobe_table``, the default) are one Glossy node: the bin is
   found by a binary search of log2 M Closest lookups in a packed CDF image (M a power of two), the
   aim inside the bin with the same random number, weights from a second image; dense scratches:
   image means equal to the OSL table lobes within noise (0.2-0.4 %).
@@ -248,7 +248,7 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
 
 
 def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types.Image]:
-    """Packed images of tabulated-tilt lobes (``precompute.scratch_lobes.table_lobes``), rows = φo slices:
+    """Packed images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), rows = φo slices:
     C [S, M+1] (R = the bin-picking CDF, G = its total P) and B [S, M] (RGB = w^0_b, A = w^m_b; lossless:
     RGB = 0) plus, in C's B channel of the first M columns, γ of each bin."""
     cdf = np.asarray(lobe_data["cdf"], np.float64)
@@ -266,7 +266,7 @@ def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types
 
 
 def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
-    """One tabulated-tilt lobe (``precompute.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
+    """One tabulated-tilt lobe (``precompute.scratch.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
     binary search of h in the slice's CDF (log2 M image lookups), aim φi inside the picked bin, a
     narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b (eq. 2)."""
     img_c, img_b = table_images(name, lobe_data)

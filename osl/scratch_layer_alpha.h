@@ -19,7 +19,7 @@
     float a2u = pv_t * r_uv / cos_v, a2v = pv_b * r_uv / cos_v;
 
     float d = clamp(Density, 0.0, 1.0);
-    float cbar;  // mean coverage c̄(d) (precompute.scratch_layers.mean_coverage), linear interpolation
+    float cbar;  // mean coverage c̄(d) (precompute.scratch.layers.mean_coverage), linear interpolation
     {
         float x = d / COV_DMAX * (arraylength(COV) - 1);
         int i0 = min((int)floor(x), arraylength(COV) - 2);
@@ -45,7 +45,9 @@
             // points), combined as a union. Exact in the sharp limit and mean-preserving.
             float R = max(spread, 1e-6);
             vector2 cell_f = vector2(floor(y.x), floor(y.y));
+#if VORONOI_INT2
             int2 cell = vec2_to_int2(cell_f);
+#endif
             float miss = 1.0;
             float fx = y.x - cell_f.x, fy = y.y - cell_f.y;  // position inside the cell
             float reach = d + R;
@@ -57,8 +59,13 @@
                 for (int i = -1; i <= 1; i++) {
                     float bx = (i < 0) ? fx : ((i > 0) ? 1.0 - fx : 0.0);
                     if (bx * bx + by * by >= reach * reach) continue;
+#if VORONOI_INT2  // Blender >= 5.0 hashes integer cells (node_voronoi.h)
                     int2 off = {i, j};
                     vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
+#else             // Blender 4.2-4.5 hash float cell coordinates
+                    vector2 off = vector2(i, j);
+                    vector2 fp = cell_f + off + hash_vector2_to_vector2(cell_f + off);
+#endif
                     miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
                 }
             }

@@ -19,9 +19,9 @@ Per shading point (world space; n = shading normal, t = UV tangent, b = n x t):
   ρ = Σ α_k ρ_k / max(ᾱ, 1) + max(1 - ᾱ, 0) ρ_b                                    (eq. 4)
   ρ_k(φo, ·) = Σ_j [R_γj(θo) w^m_j lobe^m_j + (1 - R_γj(θo)) w^0_j lobe^0_j]       (eq. 2 per lobe)
 where a lobe is a GGX (or Beckmann) microfacet lobe with normal N'_j = cos t_j n + sin t_j v_k and
-tangent u_k (see ``precompute.lobe_fit``), R_γ(θo) = (2|θo|/π)^γ and γ_j is γ at the lobe's centre.
+tangent u_k (see ``precompute.scratch.lobe_fit``), R_γ(θo) = (2|θo|/π)^γ and γ_j is γ at the lobe's centre.
 
-With ``ShaderSpec.table`` (tabulated-tilt lobes, ``precompute.lobe_table``) the fitted lobes are
+With ``ShaderSpec.table`` (tabulated-tilt lobes, ``precompute.scratch.lobe_table``) the fitted lobes are
 replaced by one narrow lobe per sample: aim bin b of the slice picked by a binary search in its CDF
 (probability p_b / P), tilt drawn inside the bin with the same hash, weight W_b(θo) P / p_b with
 W_b = R_γb w^m_b + (1 − R_γb) w^0_b (eq. 2 per bin); its expectation is the table slice.
@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..precompute.scratch import layers as layers_mod, material
+from ..precompute.scratch.material import ScratchParams
 from . import const_array, specialise
 
 #: Above this many layers, one layer is picked per shading point (probability α_k / ᾱ) so the
@@ -59,7 +61,7 @@ class LobeTable:
 
     @classmethod
     def from_fit(cls, fit: dict) -> "LobeTable":
-        """From ``precompute.scratch_lobes.lobe_tables`` entries (``weights`` [S, K] or [S, K, 3], ``tilts``,
+        """From ``precompute.scratch.lobes.lobe_tables`` entries (``weights`` [S, K] or [S, K, 3], ``tilts``,
         ``widths``, optional ``dist``, ``gamma`` and ``jitters`` [S, K]); zero-weight slots are dropped."""
         w = np.asarray(fit["weights"], float)
         rgb = np.repeat(w[..., None], 3, -1) if w.ndim == 2 else w
@@ -87,10 +89,10 @@ class ShaderSpec:
     lobes_m: LobeTable | None
     lobes_0: LobeTable | None = None        # None: lossless profile, ρ0 = ρm
     alpha_x: float = 1e-4
-    layers: object | None = None            # precompute.scratch_layers.LayerParams, None = dense
+    layers: object | None = None            # precompute.scratch.layers.LayerParams, None = dense
     theta_k: np.ndarray = field(default_factory=lambda: np.zeros(0))
     xi_k: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    coverage: np.ndarray = field(default_factory=lambda: np.zeros(0))  # c̄ on precompute.scratch_layers.COVERAGE_D
+    coverage: np.ndarray = field(default_factory=lambda: np.zeros(0))  # c̄ on precompute.scratch.layers.COVERAGE_D
     coverage_dmax: float = 1.5
     use_base: bool = True
     lobe_mode: str = "pick"                 # "pick": one hash-picked lobe (weight / probability); "all": sum
@@ -98,11 +100,12 @@ class ShaderSpec:
     base_pick: bool = True                  # eq. 4 by picking scratches (prob. min(ᾱ,1)) or base: one closure
     name: str = "scratch_svbrdf"
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
+    voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
 
 
 @dataclass
 class TableLobes:
-    """Tabulated-tilt lobes (``precompute.lobe_table``): per slice s and aim bin b the ρm weight
+    """Tabulated-tilt lobes (``precompute.scratch.lobe_table``): per slice s and aim bin b the ρm weight
     ``w_m [S, M]``, the ρ0 weights ``w_0 [S, M, 3]`` (None: lossless), ``gamma [S, M]``, the
     bin-picking ``cdf [S, M+1]`` and ``total [S]``; ``alpha_y`` the lobes' GGX width; ``strata``
     the closures summed in ``lobe_mode="all"`` (h_k = (k + h) / strata)."""
@@ -117,7 +120,7 @@ class TableLobes:
 
     @classmethod
     def from_tables(cls, t: dict, strata: int = 1) -> "TableLobes":
-        """From ``precompute.scratch_lobes.table_lobes``."""
+        """From ``precompute.scratch.lobes.table_lobes``."""
         return cls(np.asarray(t["w_m"], float), None if t.get("w_0") is None else np.asarray(t["w_0"], float),
                    np.asarray(t["gamma"], float), np.asarray(t["cdf"], float), np.asarray(t["total"], float),
                    float(t["alpha_y"]), int(strata))
@@ -172,7 +175,7 @@ def generate(spec: ShaderSpec) -> str:
                  ALPHA_MEAN=layered and spec.alpha_mode == "mean", USE_BASE=use_base,
                  BASE_PICK=spec.base_pick and use_base, LOSSLESS=lossless, LOBE_TABLE=tab is not None)
     if tab is not None:
-        # tabulated-tilt lobes (precompute.lobe_table): one sampled closure, or `strata` stratified ones
+        # tabulated-tilt lobes (precompute.scratch.lobe_table): one sampled closure, or `strata` stratified ones
         strata = tab.strata if spec.lobe_mode == "all" else 1
         if not (isinstance(strata, (int, np.integer)) and 1 <= strata <= 64):
             raise ValueError(f"table strata must be an integer in [1, 64]; got {strata!r}")
@@ -183,7 +186,7 @@ def generate(spec: ShaderSpec) -> str:
         per_slice = int(np.diff(spec.lobes_m.start).max(initial=0))
         if not lossless:
             per_slice += int(np.diff(spec.lobes_0.start).max(initial=0))
-        # tilt jitter (stochastic box lobes, precompute.lobe_fit): only compiled when a lobe has one
+        # tilt jitter (stochastic box lobes, precompute.scratch.lobe_fit): only compiled when a lobe has one
         jittered = spec.lobes_m.jittered or (not lossless and spec.lobes_0.jittered)
         flags.update(LOBE_SUM=spec.lobe_mode == "all", JITTERED=jittered, MS=ms, AX=spec.alpha_x,
                      KMAX2=max(per_slice, 1))
@@ -194,7 +197,7 @@ def generate(spec: ShaderSpec) -> str:
         lp = spec.layers
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))
         tables.append(_layer_arrays(spec))
-    flags["ALPHA_CULL"] = ALPHA_CULL
+    flags.update(ALPHA_CULL=ALPHA_CULL, VORONOI_INT2=bool(spec.voronoi_int2))
     return specialise("scratch_svbrdf.osl", flags, {"scratch_svbrdf_tables.h": "\n".join(tables)},
                       "osl/scratch_svbrdf.py")
 
@@ -222,9 +225,10 @@ class ReferenceSpec:
     coverage_dmax: float = 1.5
     use_base: bool = True
     name: str = "scratch_reference"
+    voronoi_int2: bool = True               # as ShaderSpec.voronoi_int2
 
     #: Largest table compiled into the source (5 M² floats; larger tables make OSL compile slowly).
-    MAX_M = 128
+    MAX_M = material.REFERENCE_MAX_M
 
 
 def generate_reference(spec: ReferenceSpec) -> str:
@@ -254,6 +258,32 @@ def generate_reference(spec: ReferenceSpec) -> str:
         lp = spec.layers
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))
         tables.append(_layer_arrays(spec))
-    flags["ALPHA_CULL"] = ALPHA_CULL
+    flags.update(ALPHA_CULL=ALPHA_CULL, VORONOI_INT2=bool(spec.voronoi_int2))
     return specialise("scratch_reference.osl", flags, {"scratch_reference_tables.h": "\n".join(tables)},
                       "osl/scratch_svbrdf.py (reference mode)")
+
+
+def source(params: ScratchParams, brdf=None, lobe_data=None, voronoi_int2: bool = True, **spec_options) -> str:
+    """The specialised OSL source of a scratch material (``precompute.scratch.material.validate``d
+    ``params``; tables computed or taken from the cache unless given).  ``voronoi_int2``: the running
+    Blender's Voronoi hash API (>= 5.0: True)."""
+    if brdf is None:
+        brdf = material.brdf_table(params)
+    layers = params.layers
+    theta_k, xi_k = layers_mod.layer_transforms(layers) if layers is not None else (None, None)
+    layer_kw = {} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=layers_mod.coverage_table()[1])
+    if params.mode == "reference":
+        return generate_reference(ReferenceSpec(
+            rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,
+            use_base=params.base["type"] != "none", voronoi_int2=voronoi_int2, **layer_kw))
+    if lobe_data is None:
+        lobe_data = material.lobe_data(params, brdf)
+    if params.lobe_shape == "table":
+        lobes = dict(lobes_m=None, table=TableLobes.from_tables(lobe_data, strata=params.lobes))
+    else:
+        def table(entry):
+            return None if entry is None else LobeTable.from_fit(entry)
+        lobes = dict(lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]))
+    spec = ShaderSpec(**lobes, alpha_x=lobe_data["alpha_x"], layers=layers, use_base=params.base["type"] != "none",
+                      voronoi_int2=voronoi_int2, **layer_kw, **spec_options)
+    return generate(spec)

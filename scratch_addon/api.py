@@ -38,11 +38,11 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
       base        "mirror" (perfect mirror of the same Fresnel), "none", "diffuse", "glossy",
                   "principled", or a dict ``{"type": ..., "color": ..., "roughness": ...}``
       layers      None (dense scratches everywhere), a layer count, a dict of
-                  ``precompute.scratch_layers.LayerParams`` fields (n_layers, theta_deg, length,
+                  ``precompute.scratch.layers.LayerParams`` fields (n_layers, theta_deg, length,
                   width, density, seed; lengths in UV units) or a LayerParams
       lobes       K, at most this many fitted tilted GGX lobes per φo slice (1..16, default 8;
                   lobe_shape "fit"/"box" and the SVM backend)
-      lobe_shape  "table" (default: tabulated-tilt lobes, ``precompute.lobe_table``: the slice sampled
+      lobe_shape  "table" (default: tabulated-tilt lobes, ``precompute.scratch.lobe_table``: the slice sampled
                   bin by bin by one narrow lobe, < 0.1 % rel. L1 on quartics, no fit; OSL and SVM),
                   "fit" (<= K fitted tilted lobes, smooth, 5-11 % on quartics, a little less noise
                   under small lights) or "box" (fitted lobes with a tilt jitter each: the shader draws

@@ -2,7 +2,7 @@
 
 * ``tile_from_object``: the evaluated mesh of an object as a periodic tile (object space; the
   footprint is the x/y bounding square of the mesh, moved to [0, P]^2).
-* ``small_scale_material``: a material slot -> small-scale BRDF dict (``precompute.biscale_brdfs``):
+* ``small_scale_material``: a material slot -> small-scale BRDF dict (``precompute.biscale.brdfs``):
 
   - a *Diffuse BSDF* feeding the output -> ``lambert`` with albedo = its Color;
   - a *Principled BSDF* -> ``cook_torrance`` with the GGX distribution, alpha = Roughness²
@@ -10,7 +10,7 @@
     for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
   - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², F0 = Color, no diffuse);
   - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
-* ``make_biscale_material``: ``mode="fit"``: the fitted closure mixture (``precompute.biscale_fit``)
+* ``make_biscale_material``: ``mode="fit"``: the fitted closure mixture (``precompute.biscale.fit``)
   as SVM nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups, tangent from the UV map): works on
   GPU; ``mode="reference"``: the exact table importance-sampled through ``ray_portal_bsdf`` in an
   OSL script node (``osl.biscale_reference``; OSL backend, validation renders).
@@ -110,7 +110,7 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
                           brdf=None) -> bpy.types.Material:
     """Cycles material of a bi-scale effective BRDF.
 
-    ``mode="fit"``: the fitted closure mixture ``fit`` (``precompute.biscale_fit.ClosureFit``) as SVM
+    ``mode="fit"``: the fitted closure mixture ``fit`` (``precompute.biscale.fit.ClosureFit``) as SVM
     nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups; works on GPU and in EEVEE).
     ``mode="reference"``: the exact table of ``brdf`` (``precompute.biscale.EffectiveBRDF``)
     importance-sampled by an INTERNAL OSL script node (``osl.biscale_reference``; no light sampling:
@@ -122,7 +122,7 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     if mode == "reference" and brdf is None:
         raise ValueError("brdf: the reference mode needs the EffectiveBRDF table")
     if fit is None and mode == "fit":
-        raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale_fit.fit_closures)")
+        raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale.fit.fit_closures)")
     if fit is None:  # the reference mode's twin where OSL cannot run
         fit = fitmod.fit_closures(brdf)
     src = biscale_reference.generate(brdf) if mode == "reference" else None  # ValueError first

@@ -22,6 +22,7 @@ import bpy
 import numpy as np
 
 from ..osl import iridescent_layer as layer_gen
+from ..precompute.iridescence import layer
 from ..precompute.iridescence import scratch_set
 from . import materials, osl_compile, render_paths
 
@@ -30,7 +31,7 @@ NODE_NAME = "Iridescent Scratch Layer"
 _UV_NAME = NODE_NAME + " UV"
 _TAN_NAME = NODE_NAME + " Tangent"
 SET_KEY = "scratch_iridescence_set"
-ROUTES = layer_gen.ROUTES
+ROUTES = layer.ROUTES
 
 #: Named parameter sets (PropertyGroup field -> value); lengths in UV units, sizes in µm.
 PRESETS = {
@@ -193,7 +194,7 @@ def lights_from_scene(scene) -> list:
         mw = obj.matrix_world
         if L.type == "POINT" and L.shadow_soft_size > 0.0:
             r = float(L.shadow_soft_size)
-            specs.append(layer_gen.SphereLightSpec(tuple(mw.translation), r, tuple(col / (4 * math.pi ** 2 * r * r))))
+            specs.append(layer.SphereLightSpec(tuple(mw.translation), r, tuple(col / (4 * math.pi ** 2 * r * r))))
         elif L.type == "AREA":
             sx = float(L.size)
             sy = float(L.size_y) if L.shape in ("RECTANGLE", "ELLIPSE") else sx
@@ -207,7 +208,7 @@ def lights_from_scene(scene) -> list:
                 loc = [(f * sx / 2 * math.cos(a), -f * sy / 2 * math.sin(a)) for a in
                        (2 * math.pi * i / k for i in range(k))]
             verts = tuple(tuple(mw @ Vector((x, y, 0.0))) for x, y in loc)
-            specs.append(layer_gen.PolygonLightSpec(verts, tuple(col / (math.pi * area))))
+            specs.append(layer.PolygonLightSpec(verts, tuple(col / (math.pi * area))))
     return specs
 
 
@@ -228,7 +229,7 @@ def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candi
         raise ValueError(f"route must be one of {', '.join(ROUTES)}; got {route!r}")
     if isinstance(samples, bool) or not isinstance(samples, int) or not 1 <= samples <= 32:
         raise ValueError(f"samples must be an integer in [1, 32], got {samples!r}")
-    mc = layer_gen.MAX_CANDIDATES
+    mc = layer.MAX_CANDIDATES
     if isinstance(candidates, bool) or not isinstance(candidates, int) or not 0 <= candidates <= mc:
         raise ValueError(f"candidates must be an integer in [0, {mc}] (0 = all segments in reach), got {candidates!r}")
     return dict(sigma_um=sigma_um, route=route, samples=samples, base_blend=bool(base_blend), candidates=candidates)
@@ -237,7 +238,7 @@ def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candi
 def shader_source(scratches, sigma_um=60.0, route="lobes", samples=1, base_blend=True, lights=(), name="iridescent_layer",
                   candidates=4):
     """Generated OSL source (see ``osl.iridescent_layer.generate``)."""
-    spec = layer_gen.LayerSpec(scratches, sigma_um=sigma_um, route=route, lights=list(lights), samples=samples,
+    spec = layer.LayerSpec(scratches, sigma_um=sigma_um, route=route, lights=list(lights), samples=samples,
                                base_blend=base_blend, name=name, candidates=candidates)
     return layer_gen.generate(spec)
 
@@ -248,7 +249,7 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
 
     ``candidates``: segments visited per shading sample (0 = all in reach; N > 0 = N drawn from a
     bound and resampled, unbiased, cost independent of the scratch density); ``samples``: route-A
-    lobes per shading sample (see ``osl.iridescent_layer.LayerSpec``).
+    lobes per shading sample (see ``precompute.iridescence.layer.LayerSpec``).
 
     ``scratches``: a ScratchSet (stored on the material) or None to use the stored one.  The
     surface closure previously linked to the Material Output becomes ``Base``.  Route "lights"
@@ -261,7 +262,7 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
         if scratches is None:
             raise ValueError("material has no scratch set: generate one or draw scratches from a curve first")
     elif not isinstance(scratches, scratch_set.ScratchSet):
-        raise ValueError("scratches must be a precompute.scratch_set.ScratchSet")
+        raise ValueError("scratches must be a precompute.iridescence.scratch_set.ScratchSet")
     lights = lights_from_scene(scene or bpy.context.scene) if p["route"] == "lights" else []
     src = shader_source(scratches, lights=lights, **p)
     store_scratches(material, scratches)
@@ -374,7 +375,7 @@ class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):
         ("LIGHTS", "Closed-form lights", "Velinov's sphere/polygon integrals for the scene's point/area lights "
                                          "(no shadows; rebuilt when lights change)")])
     samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=_rebuild)
-    candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer_gen.MAX_CANDIDATES,
+    candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer.MAX_CANDIDATES,
                                       update=_rebuild,
                                       description="Scratches visited per sample (0 = all in reach: exact but slow "
                                                   "on dense sets)")

@@ -26,7 +26,7 @@ def _update_cache_dir(self, _context) -> None:
 
 
 def apply_cache_dir(prefs=None) -> str:
-    """Point ``precompute.cache`` at the preference's folder (or the default); returns it."""
+    """Point ``precompute.tables.cache`` at the preference's folder (or the default); returns it."""
     prefs = prefs if prefs is not None else get_prefs()
     folder = bpy.path.abspath(prefs.cache_dir) if prefs is not None and prefs.cache_dir else default_cache_dir()
     cache.set_cache_dir(folder)

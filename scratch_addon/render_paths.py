@@ -52,26 +52,27 @@ def switch_nodes(mix) -> list:
     return [mix] + ([fac.links[0].from_node] if fac.is_linked else [])
 
 
-def link_surface(tree, svm_socket, osl_socket=None, out=None, eevee: bool = True):
-    """Wire a material's surface: one output (target All) for an SVM-only surface; for an OSL one,
-    the Cycles output through the render-path switch and (``eevee``) an EEVEE output on the SVM
-    twin.  Returns the switch's Mix node or None."""
+def link_surface(tree, svm_socket, osl_socket=None, out=None, eevee: bool = True, eevee_socket=None):
+    """Wire a material's surface: one output (target All) for a node-group surface; otherwise the
+    Cycles output gets the render-path switch between ``svm_socket`` and ``osl_socket`` (or
+    ``svm_socket`` alone) and, with ``eevee``, an EEVEE output gets ``eevee_socket`` (a lighter
+    preview) or the SVM twin.  Returns the switch's Mix node or None."""
     out = out or cycles_output(tree)
-    if osl_socket is None:
+    if osl_socket is None and eevee_socket is None:
         out.target = "ALL"
         tree.links.new(svm_socket, out.inputs["Surface"])
         return None
     out.target = "CYCLES"
     x, y = out.location
-    mix = switch_shader(tree, svm_socket, osl_socket, (x - 200, y))
-    tree.links.new(mix.outputs["Shader"], out.inputs["Surface"])
+    mix = None if osl_socket is None else switch_shader(tree, svm_socket, osl_socket, (x - 200, y))
+    tree.links.new(svm_socket if mix is None else mix.outputs["Shader"], out.inputs["Surface"])
     if eevee:
         node = tree.nodes.get(EEVEE_OUTPUT_NAME) or tree.nodes.new("ShaderNodeOutputMaterial")
         node.name = node.label = EEVEE_OUTPUT_NAME
         node.target = "EEVEE"
         node.location = (x, y - 200)
-        if svm_socket is not None:
-            tree.links.new(svm_socket, node.inputs["Surface"])
+        if (eevee_socket or svm_socket) is not None:
+            tree.links.new(eevee_socket or svm_socket, node.inputs["Surface"])
     return mix
 
 

@@ -8,18 +8,24 @@ its node-group twin (``node_groups.scratch_svm``) for Cycles SVM, GPU and EEVEE 
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import bpy
 import numpy as np
 
 from ..node_groups import scratch_svm
-from ..osl import scratch_svbrdf as osl_gen
+from ..osl.scratch_svbrdf import source as shader_source
 from ..precompute.scratch import layers as scratch_layers
 from ..precompute.scratch.material import (BACKENDS, BASE_TYPES, LOBE_SHAPES, MODES, ScratchParams,  # noqa: F401
-                                           fit_error, lobe_data as _lobe_data, tables, validate)
+                                           fit_error, tables, validate)
 from ..precompute.validation import check_range
 from . import osl_compile, render_paths
+
+#: EEVEE compiles every layer into one GLSL shader, and its compile time explodes with the shader's size
+#: (software GL here, 48x32 px: 16 layers 1.8 s, 18 layers 198 s, 24 layers > 15 min; fig12d's 32 layers as 16
+#: with its wood texture 73 s, as 8: 5.2 s).  Above this count EEVEE renders ``merged_layers``.
+EEVEE_MAX_LAYERS = 8
 
 def _check_uvs_for(obj_meshes) -> None:
     for mesh in obj_meshes:
@@ -99,30 +105,6 @@ def _base_node(tree, params: ScratchParams):
     return node
 
 
-def shader_source(params: ScratchParams, brdf=None, lobe_data=None, **spec_options) -> str:
-    """Generate the specialised OSL source for ``params`` (tables computed or taken from the cache)."""
-    if brdf is None:
-        brdf = tables(params)["brdf"]
-    layers = params.layers
-    theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
-    layer_kw = {} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=scratch_layers.coverage_table()[1])
-    if params.mode == "reference":
-        return osl_gen.generate_reference(osl_gen.ReferenceSpec(
-            rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,
-            use_base=params.base["type"] != "none", **layer_kw))
-    if lobe_data is None:
-        lobe_data = _lobe_data(params, brdf)
-    if params.lobe_shape == "table":
-        lobes = dict(lobes_m=None, table=osl_gen.TableLobes.from_tables(lobe_data, strata=params.lobes))
-    else:
-        def table(entry):
-            return None if entry is None else osl_gen.LobeTable.from_fit(entry)
-        lobes = dict(lobes_m=table(lobe_data["m"]), lobes_0=table(lobe_data["0"]))
-    spec = osl_gen.ShaderSpec(**lobes, alpha_x=lobe_data["alpha_x"], layers=layers,
-                              use_base=params.base["type"] != "none", **layer_kw, **spec_options)
-    return osl_gen.generate(spec)
-
-
 def _wood_texture(tree, socket) -> None:
     """Procedural wood rings (Wave texture through a brown colour ramp) into ``socket``."""
     wave = tree.nodes.new("ShaderNodeTexWave")
@@ -147,13 +129,16 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way.
 
     Backend "svm": node groups only.  Backend "osl": the OSL script for Cycles with OSL on the CPU
-    plus its SVM twin for Cycles SVM (the default, GPU) and EEVEE, chosen by ``render_paths``."""
+    plus its SVM twin for Cycles SVM (the default, GPU) and EEVEE, chosen by ``render_paths``.  EEVEE
+    gets a lighter twin above ``EEVEE_MAX_LAYERS`` layers (``precompute.scratch.layers.merged_layers``:
+    the same scratched fraction in fewer layers), because it compiles every layer into one shader."""
     step = progress or (lambda _f: None)
     step(0.05)
     tab = tables(params)
     brdf, lobe_data, svm_lobes = tab["brdf"], tab["lobes"], tab["svm_lobes"]
     step(0.7)
-    src = None if params.backend == "svm" else shader_source(params, brdf, lobe_data, **spec_options)
+    src = None if params.backend == "svm" else shader_source(
+        params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()
@@ -162,8 +147,11 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     base = _base_node(tree, params)
     if base is not None:
         base.location = (-200, -250)
-    svm_surface = _build_svm(tree, material, params, svm_lobes, base)
-    osl_surface = None
+    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base), "osl": None, "eevee": None}
+    if params.layers is not None and params.layers.n_layers > EEVEE_MAX_LAYERS:
+        preview = dataclasses.replace(params, layers=scratch_layers.merged_layers(params.layers, EEVEE_MAX_LAYERS))
+        surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
+                                       f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600))
     if src is not None:
         script = osl_compile.script_node_from_source(tree, f"{material.name}.scratch.osl", src)
         script.location = (200, 300)
@@ -179,26 +167,27 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
         tint.default_value = (*params.tint, 1.0) if len(tint.default_value) == 4 else params.tint
         if base is not None and "Base" in script.inputs:
             tree.links.new(base.outputs[0], script.inputs["Base"])
-        osl_surface = script.outputs["BSDF"]
-    return _finish(material, tree, out, svm_surface, osl_surface, params, lobe_data, step)
+        surfaces["osl"] = script.outputs["BSDF"]
+    return _finish(material, tree, out, surfaces, params, lobe_data, step)
 
 
-def _build_svm(tree, material, params: ScratchParams, lobe_data, base) -> bpy.types.NodeSocket:
-    """The node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
+def _build_svm(tree, material, params: ScratchParams, lobe_data, base, label="SVM path (Cycles SVM / GPU, EEVEE)",
+               offset=(-1400, -600)) -> bpy.types.NodeSocket:
+    """A node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
     layers = params.layers
     theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
     before = set(tree.nodes)
     surface = scratch_svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
-                        base_socket=None if base is None else base.outputs[0], name=material.name)
+                                base_socket=None if base is None else base.outputs[0], name=material.name)
     frame = tree.nodes.new("NodeFrame")
-    frame.label = "SVM path (Cycles SVM / GPU, EEVEE)"
+    frame.label = label
     for node in set(tree.nodes) - before - {frame}:
-        node.location = (node.location[0] - 1400, node.location[1] - 600)
+        node.location = (node.location[0] + offset[0], node.location[1] + offset[1])
         node.parent = frame
     return surface
 
 
-def _finish(material, tree, out, svm_surface, osl_surface, params: ScratchParams, lobe_data, step) -> bpy.types.Material:
+def _finish(material, tree, out, surfaces: dict, params: ScratchParams, lobe_data, step) -> bpy.types.Material:
     """Diffuse term, output links (render paths), material flags and the stored parameters."""
     if params.diffuse is not None:  # a Lambertian term common to scratches and base (Fig. 12c, d)
         diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
@@ -215,10 +204,9 @@ def _finish(material, tree, out, svm_surface, osl_surface, params: ScratchParams
             tree.links.new(diff.outputs["BSDF"], add.inputs[1])
             return add.outputs["Shader"]
 
-        svm_surface = with_diffuse(svm_surface, -150)
-        if osl_surface is not None:
-            osl_surface = with_diffuse(osl_surface, 150)
-    render_paths.link_surface(tree, svm_surface, osl_surface, out)
+        surfaces = {k: None if s is None else with_diffuse(s, y)
+                    for (k, s), y in zip(surfaces.items(), (-150, 150, -450))}
+    render_paths.link_surface(tree, surfaces["svm"], surfaces["osl"], out, eevee_socket=surfaces["eevee"])
     material.cycles.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
     material["scratch_addon_kind"] = "scratch_svbrdf"
     if lobe_data is not None:

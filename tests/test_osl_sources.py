@@ -21,8 +21,9 @@ import re
 import numpy as np
 import pytest
 
-import osl
-from osl import biscale_reference, iridescent_layer, scratch_svbrdf
+from scratch_materials import osl
+from scratch_materials.osl import biscale_reference, iridescent_layer, scratch_svbrdf
+from scratch_materials.precompute.iridescence import layer as ly
 
 OSL_FILES = sorted(glob.glob(os.path.join(osl.OSL_DIR, "*.osl")))
 GENERATORS = sorted(glob.glob(os.path.join(osl.OSL_DIR, "*.py")))
@@ -45,8 +46,9 @@ def _header_defines(src: str) -> dict:
 @pytest.fixture(scope="module")
 def scratch_specs():
     """(name, spec, expected sockets) for every scratch shader variant the generators can emit."""
-    from precompute import fresnel, profiles, scratch_brdf, scratch_layers, scratch_lobes
-    from precompute.scratch_layers import LayerParams
+    from scratch_materials.precompute.scratch import (brdf as scratch_brdf, fresnel, layers as scratch_layers,
+                                                     lobes as scratch_lobes, profiles)
+    from scratch_materials.precompute.scratch.layers import LayerParams
 
     coverage = scratch_layers.coverage_table()[1]
 
@@ -96,21 +98,21 @@ def scratch_specs():
 
 
 def _iridescent_specs():
-    from precompute.scratch_set import random_scratches
+    from scratch_materials.precompute.iridescence.scratch_set import random_scratches
 
     S = random_scratches(20, seed=3, uv_scale_um=1e4)
-    sphere = iridescent_layer.SphereLightSpec((0.2, -0.1, 2.0), 0.1, (3.0, 2.0, 1.0))
-    poly = iridescent_layer.PolygonLightSpec(((0, 0, 2), (0, 1, 2), (1, 1, 2), (1, 0, 2.2)), (2.0, 2.0, 2.0), True)
+    sphere = ly.SphereLightSpec((0.2, -0.1, 2.0), 0.1, (3.0, 2.0, 1.0))
+    poly = ly.PolygonLightSpec(((0, 0, 2), (0, 1, 2), (1, 1, 2), (1, 0, 2.2)), (2.0, 2.0, 2.0), True)
     out = []
     # route A (lobes; lights are ignored) / route B with no, sphere, polygon, both lights x base_blend
     # x candidates all / RIS
     for (route, lights), blend, cand in itertools.product(
             [("lobes", [sphere]), ("lights", []), ("lights", [sphere]), ("lights", [poly]), ("lights", [sphere, poly])],
             (True, False), (0, 4)):
-        out.append(iridescent_layer.LayerSpec(S, route=route, lights=list(lights), base_blend=blend, candidates=cand,
+        out.append(ly.LayerSpec(S, route=route, lights=list(lights), base_blend=blend, candidates=cand,
                                               name=f"i_{len(out)}"))
-    out.append(iridescent_layer.LayerSpec(S, samples=3, name="i_samples"))
-    out.append(iridescent_layer.LayerSpec(random_scratches(0), name="i_empty"))
+    out.append(ly.LayerSpec(S, samples=3, name="i_samples"))
+    out.append(ly.LayerSpec(random_scratches(0), name="i_empty"))
     return out
 
 
@@ -224,7 +226,7 @@ def test_the_checks_above_can_fail():
 # ----------------------------------------------------------------------------- shared numbers
 def test_si_coefficients_in_the_shader_are_the_numpy_twins():
     src = osl.read_source("iridescent_layer.osl")
-    for name, ref in (("SF", iridescent_layer.SI_F), ("SG", iridescent_layer.SI_G)):
+    for name, ref in (("SF", ly.SI_F), ("SG", ly.SI_G)):
         body = re.search(rf"float {name}\[9\] = \{{([^}}]*)\}};", src).group(1)
         vals = np.array([float(v) for v in body.split(",")], np.float32)
         np.testing.assert_array_equal(vals, np.asarray(ref, np.float32))

@@ -14,7 +14,7 @@ Pipeline (names from the paper):
    (Table 2, mean subtracted, ``power_N`` of the power kept);
 5. M_kj = f_r(n_j, ωi,k, ωo,k) (n_j·ωi)(n_j·ωo) (eqs. 4, 9) per BRDF lobe, computed once
    in row chunks, compressed by streamed random-projection SVD (``power_M``) and cached
-   on disk (``precompute.cache``) and in memory.  The column of the pole n = (0, 0, 1) is
+   on disk (``precompute.tables.cache``) and in memory.  The column of the pole n = (0, 0, 1) is
    kept exactly besides the SVD (flat parts of tiles are the most common facets, and a
    flat tile must give back its small-scale BRDF exactly);
 6. f̄r(ωi,k, ωo,k) = (1/a_v(ωo,k)) Σ_j N_kj M_kj via the factors (eq. 12); RGB =
@@ -93,7 +93,7 @@ def precompute_M(lobe: Lobe, dir_res: int = DEFAULTS["dir_res"], normal_res: int
                  seed: int = 0, use_cache: bool = True) -> MFactors:
     """Pre-rotated cosine-weighted BRDF matrix M of one lobe (eqs. 4, 9; §3.5), compressed by
     the streamed random-projection SVD (Table 2) keeping ``power`` of its power, and cached
-    (disk via ``precompute.cache`` keyed by the lobe and all parameters, plus memory)."""
+    (disk via ``precompute.tables.cache`` keyed by the lobe and all parameters, plus memory)."""
     key = (lobe.key, dir_res, normal_res, power, l, n_power, seed)
     if key in _M_MEMO:
         return _M_MEMO[key]
@@ -167,7 +167,7 @@ class EffectiveBRDF:
         return np.array(out)
 
     def save_exr(self, path) -> None:
-        """Write the table as a float EXR (``precompute.exr_io``): channels R, G, B of shape
+        """Write the table as a float EXR (``precompute.tables.exr_io``): channels R, G, B of shape
         (D, D), row = ωi index, column = ωo index on ``direction_grid(dir_res)``."""
         meta = {"kind": "biscale_effective_brdf", "dir_res": int(self.dir_res),
                 "parametrisation": "hemi-octahedral cell-centred; index = row*res+col, s=px+py, t=px-py",
@@ -363,7 +363,7 @@ def effective_brdf(vertices, faces, face_material, materials, **opts) -> Effecti
     """Effective large-scale BRDF (eq. 7, via eqs. 8-12) of a periodic small-scale tile.
 
     ``vertices`` (V, 3), ``faces`` (F, 3), ``face_material`` (F,) index into ``materials``
-    (list of dicts, see ``precompute.biscale_brdfs``).  Options: ``period`` (tile side,
+    (list of dicts, see ``precompute.biscale.brdfs``).  Options: ``period`` (tile side,
     default 1), ``color_weights`` ((F, 3) or (V, 3)), and ``DEFAULTS`` keys.  Returns an
     ``EffectiveBRDF`` whose ``.eval(wi, wo)`` is the reciprocal standard BRDF (1/sr)."""
     period = opts.pop("period", 1.0)

@@ -9,7 +9,7 @@ i.e. the cosine-weighted BRDF (what the integrator multiplies by the incident ra
 
     f̄r_fit(ωi, ωo) = kd cos θi / π + Σ_l c_l · eval_GGX(N_l, T_l, α_x,l, α_y,l; view ωo, light ωi),
 
-with ``eval_GGX`` the numpy twin of Cycles' closure (``precompute.cycles_ggx.bsdf_eval``: D G2 /
+with ``eval_GGX`` the numpy twin of Cycles' closure (``precompute.cycles.ggx.bsdf_eval``: D G2 /
 (4 N·ωo), height-correlated Smith G, lights below the closure normal rejected).  Lobe normals
 may be tilted: N_l = cos t n + sin t (cos φ u + sin φ v), tangents T_l = cos ψ u + sin ψ v in the
 surface frame (u = UV tangent = tile x axis, v = n x u, n = large-scale normal = tile z axis).

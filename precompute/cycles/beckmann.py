@@ -14,7 +14,7 @@ calls ``bsdf_microfacet_beckmann_setup``: alpha_x, alpha_y saturated to [0, 1], 
       Lambda = ((0.396 a - 1.259) a + 1) / ((2.181 a + 3.535) a)     otherwise, a = 1/sqrt(s)
 
 - everything else (height-correlated G2 = 1/(1 + Lambda_I + Lambda_O), eval = D G2 / (4 N.wi),
-  rejections) is shared with GGX, see :mod:`precompute.cycles_ggx`.
+  rejections) is shared with GGX, see :mod:`precompute.cycles.ggx`.
 
 The slope-space view used by the cone collapse: Beckmann slopes (s_x, s_y) have the Gaussian
 density ``P22 = exp(-(s_x/ax)^2 - (s_y/ay)^2) / (pi ax ay)``; the marginal of x = s_y / ay is

@@ -227,7 +227,7 @@ def bsdf_eval(N, T, alpha_x, alpha_y, wi, wo, Ng=_Z, bump_map_correction=False, 
     roughnesses ``alpha_x`` (along T), ``alpha_y`` (dimensionless, clamped to [0, 1] like
     ``bsdf_microfacet_ggx_setup`` / ``..._beckmann_setup``).  ``dist``: "ggx" or "beckmann" (or
     codes 0/1, broadcastable; Beckmann D and Cycles' approximate Beckmann Lambda from
-    :mod:`precompute.cycles_beckmann`).  Returns ``(eval, pdf)``: eval = D G2 / (4 N.wi) = f cos(light)
+    :mod:`precompute.cycles.beckmann`).  Returns ``(eval, pdf)``: eval = D G2 / (4 N.wi) = f cos(light)
     (per steradian of ``wo``) and the VNDF pdf D / (4 N.wi (1 + Lambda(wi))).
     """
     code = dist_code(dist)

@@ -8,7 +8,7 @@ Units and frames
 ----------------
 * Wavelength λ, scratch width W and depth D, coherence radius σ: **micrometres**
   (σ = 60 µm by default, Table 1).  Angles in radians.
-* Scratches live in UV space (``precompute.scratch_set.ScratchSet``); a UV length
+* Scratches live in UV space (``precompute.iridescence.scratch_set.ScratchSet``); a UV length
   times ``uv_scale_um`` is micrometres.  The local shading frame is x = +U, y = +V,
   z = surface normal (UV assumed orthogonal and isotropically scaled).  The
   shading point of UV coordinate (u, v) sits at (u, v, 0) in *surface units*,
@@ -249,7 +249,7 @@ class EvalResult:
         unit radiance, i.e. ∫_light f_r,scratch cosθ_i dω_i (dimensionless; C = 3 in
         'rgb' mode, C = L wavelengths in 'spectral' mode).
     rho : (P,) scratch area density used for the base blend (eq. 6/17/18), in [0, 1].
-    rgb : (P, 3) scratch term as linear Rec.709 RGB (spectral mode: via ``precompute.cie``).
+    rgb : (P, 3) scratch term as linear Rec.709 RGB (spectral mode: via ``precompute.iridescence.cie``).
     total : (P, C) ``(1 − ρ)·base + scratch`` when a base was given, else None.
     wavelengths_um : (C,) wavelengths the channels were evaluated at.
     """

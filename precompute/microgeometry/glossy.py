@@ -158,7 +158,7 @@ def closure_frame(roughness, anisotropy, rotation, tilt):
     In the surface frame (UV tangent, bitangent, normal): ``T_r = (cos 2 pi r, sin 2 pi r, 0)``,
     ``B_r = n x T_r``, ``N' = normalize(tilt)``, tangent ``X' = normalize(B_r x N')`` (Glossy Rotation
     input left at 0), alphas from :func:`cycles_glossy_alphas`.  Feed ``N', X'`` to
-    :func:`precompute.cycles_ggx.bsdf_eval`.
+    :func:`precompute.cycles.ggx.bsdf_eval`.
     """
     t = np.asarray(tilt, dtype=np.float64)
     N = t / np.linalg.norm(t, axis=-1, keepdims=True)
@@ -215,7 +215,7 @@ def glossy_from_ndf(ndf, model: str = "ellipsoid", n_nodes: int = 96) -> GlossyP
 
 
 def node_textures(texture) -> tuple[dict[str, np.ndarray], LossReport]:
-    """A synthesised (H, W, 5) parameter texture (§9, :mod:`precompute.ndf_synthesis`) -> packed images.
+    """A synthesised (H, W, 5) parameter texture (§9, :mod:`precompute.microgeometry.synthesis`) -> packed images.
 
     Returns ``({"params": (H, W, 4), "tilt": (H, W, 4)}, loss)`` float32 RGBA, rows in texture order
     (row 0 = ``y = 0`` = Blender's bottom row, so ``v`` runs along the texture's ``y``):

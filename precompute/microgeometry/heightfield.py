@@ -9,7 +9,7 @@ Readers (:func:`load_heightfield`):
 
 * ``.npy`` - a 2D float array; ``.npz`` - key ``heights`` (or the only array) and optional scalar
   ``pixel_um``;
-* ``.exr`` - a float EXR read with :func:`precompute.exr_io.read_exr`, channel ``Z``/``height``/``Y``
+* ``.exr`` - a float EXR read with :func:`precompute.tables.exr_io.read_exr`, channel ``Z``/``height``/``Y``
   or the only channel; ``pixel_um`` may come from the file's metadata;
 * ``.txt``, ``.csv``, ``.asc``, ``.dat`` - a plain grid of numbers (whitespace or comma separated,
   ``#`` comments, ``nan`` or empty cells for missing points);

@@ -9,7 +9,7 @@ Public API
   patch then averaged (Appendix A), evaluated exactly on an FFT frequency grid (see
   :func:`kirchhoff_integral_fft`) instead of the paper's Monte Carlo; :func:`kirchhoff_integral_direct`
   is the direct-sum reference.
-* :func:`fit_ellipsoid`, :func:`ellipsoid_ndf` - re-exported from :mod:`precompute.ellipsoid_ndf`.
+* :func:`fit_ellipsoid`, :func:`ellipsoid_ndf` - re-exported from :mod:`precompute.microgeometry.ellipsoid`.
 
 Table format (§5.1): the hemisphere around the mean normal ``n = +z`` is projected orthographically
 onto the unit disk, ``m -> (m_x, m_y)``, embedded in ``[-1, 1]^2`` and tabulated on

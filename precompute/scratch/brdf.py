@@ -38,7 +38,7 @@ bin i by ``C_i`` (not by ``pi/M cos(phi_i centre)``) to keep that furnace exact.
 
 Simulation
 ----------
-``method="exact"`` (default): exact 2D beam tracing of the polyline (``precompute.scratch_beam``):
+``method="exact"`` (default): exact 2D beam tracing of the polyline (``precompute.scratch.beam``):
 each incident direction gives a finite sum of exit beams.  They are traced at the M*K+1 bin
 edges (K = ``supersample``, default ``default_supersample(M)``: 3 at M = 256), 8x finer in the two
 bins at each horizon (plus a graded refinement at the horizon), and each exit *path* (segment
@@ -62,7 +62,7 @@ the other rows is a direct measure of it (< 1 % at the default K on the test pro
 V-groove).  Symmetric profiles trace and integrate only phi_i <= 0 (anti-diagonal symmetry
 ``rho(phi_o, phi_i) = rho(-phi_o, -phi_i)``).  ``workers`` threads (default 2) trace and integrate
 contiguous parts of the phi_i range; the result does not depend on it.  ``method="mc"``: Monte
-Carlo reference (``precompute.scratch_mc``).
+Carlo reference (``precompute.scratch.mc``).
 
 Recursion limit: at most ``max_bounces`` (64) reflections, and the tracing of an incident
 direction stops once less than 1e-7 of its light is inside; what is left is ``lost`` (max over
@@ -672,7 +672,7 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
     ``fresnel``: None (lossless mirror: ``rho0 == rho_m``, gamma = 1) or a ``precompute.fresnel`` model;
     ``method``: "exact" (beam tracing, ``supersample`` K traces per phi_i bin, None = ``default_supersample(M)``) or "mc"
     (``rays_per_slice``, ``seed``); ``split_bounces``: also return rho_m split into 1st / 2nd / >= 3rd
-    bounce light (Fig. 5); ``cache``: reuse an identical earlier result from ``precompute.cache``.
+    bounce light (Fig. 5); ``cache``: reuse an identical earlier result from ``precompute.tables.cache``.
     """
     _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
     supersample = default_supersample(resolution) if supersample is None else int(supersample)

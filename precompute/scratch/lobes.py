@@ -2,7 +2,7 @@
 
 ``lobe_tables(brdf, K, slices)`` fits, at the shader's ``slices`` φo slice centres (table rows
 interpolated there, not averaged: averaging smears the moving mirror peaks), at most K lobes
-(``precompute.lobe_fit``, GGX or Beckmann per lobe) to
+(``precompute.scratch.lobe_fit``, GGX or Beckmann per lobe) to
 
 - ρm (mono: Fresnel is 1 at grazing view, so ρm has no colour), and
 - ρ0 per colour channel: lobe shapes (tilt, width) are fitted once on the channel mean and
@@ -14,7 +14,7 @@ profile (ρ0 = ρm) returns no ρ0 lobes.  With ``jitter=True`` every lobe also 
 (the shader draws the tilt uniformly in [t − j, t + j] per sample: a box of φi width 4 j,
 ``cycles_ggx.cone_collapse_binned_jittered``).  Angles in radians.
 
-``table_lobes(brdf, slices)`` is the exact alternative (``precompute.lobe_table``): per slice one
+``table_lobes(brdf, slices)`` is the exact alternative (``precompute.scratch.lobe_table``): per slice one
 weight per φi bin for ρm and ρ0, γ per bin and the shader's bin-picking CDF; no fit.
 """
 from __future__ import annotations
@@ -166,7 +166,7 @@ def _conserve_energy(w: np.ndarray, atoms: np.ndarray, rows: np.ndarray, edges: 
 
 
 def table_lobes(brdf, slices: int = 64, use_cache: bool = True) -> dict:
-    """Tabulated-tilt lobes for the shader (``precompute.lobe_table``) at the ``slices`` slice centres.
+    """Tabulated-tilt lobes for the shader (``precompute.scratch.lobe_table``) at the ``slices`` slice centres.
 
     Returns a dict: ``phi_o [S]``, ``alpha_x``, ``alpha_y`` (the table lobes' GGX width), ``w_m [S, M]``
     (ρm closure weight per aim bin, mono), ``w_0 [S, M, 3]`` (ρ0, RGB; None when lossless), ``gamma

@@ -22,7 +22,7 @@ BASE_TYPES = ("mirror", "none", "diffuse", "glossy", "principled")
 MODES = ("lobes", "reference")
 BACKENDS = ("osl", "svm")
 #: "fit": <= K fitted tilted lobes; "box": fitted lobes with a tilt jitter each; "table": tabulated-tilt
-#: lobes (precompute.lobe_table: the slice sampled bin by bin, exact, no fit; the default)
+#: lobes (precompute.scratch.lobe_table: the slice sampled bin by bin, exact, no fit; the default)
 LOBE_SHAPES = ("fit", "box", "table")
 
 
@@ -151,11 +151,16 @@ def fit_error(lobe_data: dict) -> float:
         errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
     return float(max(np.max(e) for e in errs))
 
+def brdf_table(params: ScratchParams):
+    """The scratch BRDF of ``params`` (ρ0, ρm, γ; ``brdf.simulate``, cached by content hash)."""
+    return scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+
+
 def tables(params: ScratchParams) -> dict:
     """Every table ``params`` renders with (cached by content hash): ``brdf`` (ScratchBRDF), ``lobes``
     (lobe data of ``params.lobe_shape``; None in reference mode) and ``svm_lobes`` (what the
     node-group twin renders: the same data for table lobes or the SVM backend, else table lobes)."""
-    brdf = scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    brdf = brdf_table(params)
     data = lobe_data(params, brdf) if params.mode == "lobes" else None
     svm = data if data is not None and (params.backend == "svm" or params.lobe_shape == "table") else None
     if svm is None:  # the SVM twin of fitted (per-lobe GGX/Beckmann) or reference shaders: table lobes

@@ -67,7 +67,7 @@ class Profile:
         return float(-self.h.min())
 
     def cache_key(self) -> dict:
-        """Inputs identifying the simulated geometry, for ``precompute.cache``."""
+        """Inputs identifying the simulated geometry, for ``precompute.tables.cache``."""
         return {"name": self.name, "params": dict(self.params), "x": self.x, "h": self.h}
 
     def periodic_vertices(self) -> np.ndarray:

@@ -25,7 +25,7 @@ def _openexr():
     try:
         import OpenEXR  # noqa: PLC0415 - optional heavy import, only when needed
     except ImportError as exc:  # pragma: no cover - requirements.txt installs it
-        raise ImportError("precompute.exr_io needs the 'OpenEXR' package (pip install OpenEXR)") from exc
+        raise ImportError("precompute.tables.exr_io needs the 'OpenEXR' package (pip install OpenEXR)") from exc
     return OpenEXR
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from scratch_materials.osl import biscale_reference as ref
+from scratch_materials.precompute.biscale import reference as tables
 from scratch_materials.precompute.biscale.effective import BiscaleTile
 from scratch_materials.precompute.biscale.directions import direction_solid_angles, hemi_oct_decode
 from scratch_materials.precompute.biscale.geometry import rods_tile
@@ -42,7 +43,7 @@ def test_jacobian_matches_solid_angles():
     h = 2.0 / res
     c = -1.0 + (np.arange(res * sub) + 0.5) * (h / sub)
     S, T = np.meshgrid(c, c, indexing="ij")
-    J = ref.jacobian(np.stack([S, T], -1)) * (h / sub) ** 2
+    J = tables.jacobian(np.stack([S, T], -1)) * (h / sub) ** 2
     om = J.reshape(res, sub, res, sub).sum((1, 3)).ravel()
     assert om.sum() == pytest.approx(2 * np.pi, rel=1e-4)
     np.testing.assert_allclose(om, direction_solid_angles(res, sub=32), rtol=2e-3)
@@ -51,11 +52,11 @@ def test_jacobian_matches_solid_angles():
 def test_sampler_weight_is_eval_cos_over_pdf(brdf):
     """weight · pdf / cos θi == EffectiveBRDF.eval(ωi, ωo) for views on grid nodes (the tap pick is
     then deterministic): the shader evaluates exactly the table that ``.eval`` interpolates."""
-    tb = ref.reference_tables(brdf)
+    tb = tables.reference_tables(brdf)
     rng = np.random.default_rng(1)
     o = rng.integers(0, len(brdf.directions), 400)
     wo = brdf.directions[o]
-    wi, w, pdf = ref.sample_numpy(tb, wo, rng.random((400, 5)))
+    wi, w, pdf = tables.sample_numpy(tb, wo, rng.random((400, 5)))
     np.testing.assert_allclose(w * pdf[:, None] / wi[:, 2:3], brdf.eval(wi, wo), rtol=1e-5, atol=1e-6)
     assert np.all(pdf > 0) and np.all(wi[:, 2] > 0)
 
@@ -63,11 +64,11 @@ def test_sampler_weight_is_eval_cos_over_pdf(brdf):
 def test_sampler_pdf_is_normalised(brdf):
     """E[1/pdf] = ∫ dω = 2π and E[cos/pdf] = π (the defensive part gives full support).
     200k samples: the relative std of 1/pdf is < 3, standard error < 0.7 %; tolerance 2 %."""
-    tb = ref.reference_tables(brdf)
+    tb = tables.reference_tables(brdf)
     rng = np.random.default_rng(2)
     N = 200_000
     for oi in _views(brdf):
-        wi, _, pdf = ref.sample_numpy(tb, np.broadcast_to(brdf.directions[oi], (N, 3)), rng.random((N, 5)))
+        wi, _, pdf = tables.sample_numpy(tb, np.broadcast_to(brdf.directions[oi], (N, 3)), rng.random((N, 5)))
         assert np.mean(1 / pdf) == pytest.approx(2 * np.pi, rel=0.02)
         assert np.mean(wi[:, 2] / pdf) == pytest.approx(np.pi, rel=0.02)
 
@@ -75,7 +76,7 @@ def test_sampler_pdf_is_normalised(brdf):
 def test_sampler_mean_is_albedo_off_grid(brdf):
     """Off-grid views (stochastic tap pick): mean weight == ∫ .eval cos dωi by an independent
     midpoint rule.  200k samples, per-sample relative std < 1 -> standard error < 0.25 %; tolerance 1 %."""
-    tb = ref.reference_tables(brdf)
+    tb = tables.reference_tables(brdf)
     rng = np.random.default_rng(3)
     n_t, n_p = 96, 192
     mu = (np.arange(n_t) + 0.5) / n_t
@@ -85,7 +86,7 @@ def test_sampler_mean_is_albedo_off_grid(brdf):
     wq = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
     for wo in hemi_oct_decode(np.array([[0.33, -0.21], [-0.61, 0.47], [0.05, 0.9]])):
         N = 200_000
-        _, w, _ = ref.sample_numpy(tb, np.broadcast_to(wo, (N, 3)), rng.random((N, 5)))
+        _, w, _ = tables.sample_numpy(tb, np.broadcast_to(wo, (N, 3)), rng.random((N, 5)))
         quad = (brdf.eval(wq, np.broadcast_to(wo, wq.shape)) * wq[:, 2:3]).sum(0) * (2 * np.pi / (n_t * n_p))
         np.testing.assert_allclose(w.mean(0), quad, rtol=0.01)
 

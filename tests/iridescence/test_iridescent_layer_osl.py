@@ -10,20 +10,21 @@ from hypothesis import given, settings, strategies as st
 from scipy import integrate, special
 
 from scratch_materials.osl import iridescent_layer as il
+from scratch_materials.precompute.iridescence import layer as ly
 from scratch_materials.precompute.iridescence import model as ir
 from scratch_materials.precompute.iridescence.model import RGB_WAVELENGTHS_UM, SIGMA_UM
 from scratch_materials.precompute.iridescence.scratch_set import ScratchSet, point_segment_distance, random_scratches
 
 
 def test_constants_match_numpy_model():
-    assert np.allclose(il.RGB_WAVELENGTHS_UM, RGB_WAVELENGTHS_UM) and il.SIGMA_UM == SIGMA_UM
+    assert np.allclose(ly.RGB_WAVELENGTHS_UM, RGB_WAVELENGTHS_UM) and ly.SIGMA_UM == SIGMA_UM
 
 
 def test_si_float32_twin_matches_scipy():
     # The shader's Si (float32 Taylor + fitted auxiliary functions) against double-precision sici:
     # float32 rounding of the ~π/2 result is 1e-7, fit error 1.4e-6 → 5e-6 is tight.
     x = np.concatenate([np.linspace(-60, 60, 40001), np.geomspace(60, 1e5, 2000), -np.geomspace(60, 1e5, 50)])
-    err = np.abs(il.si_float32(x) - special.sici(x)[0])
+    err = np.abs(ly.si_float32(x) - special.sici(x)[0])
     assert err.max() < 5e-6, err.max()
     # Eq. 29's approximation is 100x worse; make sure the test could tell them apart
     from scratch_materials.precompute.iridescence.model import si_approx
@@ -34,7 +35,7 @@ def test_si_float32_twin_matches_scipy():
 @given(st.integers(1, 60), st.floats(0.002, 0.05), st.integers(0, 10_000))
 def test_reach_grid_cell_holds_every_segment_in_reach(count, reach, seed):
     S = random_scratches(count, length_range=(0.0, 0.2), seed=seed)
-    g = il.reach_grid(S.p0, S.p1, reach)
+    g = ly.reach_grid(S.p0, S.p1, reach)
     rng = np.random.default_rng(seed)
     q = rng.uniform(-0.1, 1.1, (400, 2))
     d = point_segment_distance(q[:, None], S.p0[None], S.p1[None])          # brute force (400, M)
@@ -47,7 +48,7 @@ def test_reach_grid_cell_holds_every_segment_in_reach(count, reach, seed):
             continue
         cell = ix[i, 1] * g.nx + ix[i, 0]
         assert near <= set(g.items[g.start[cell]:g.start[cell + 1]].tolist())
-    assert g.nx * g.ny <= il.MAX_CELLS
+    assert g.nx * g.ny <= ly.MAX_CELLS
 
 
 def test_route_a_proxy_has_the_model_mass_and_bounded_weight():
@@ -68,35 +69,35 @@ def test_route_a_proxy_has_the_model_mass_and_bounded_weight():
 
 def test_generated_source_features():
     S = random_scratches(20, seed=3, uv_scale_um=1e4)
-    a = il.generate(il.LayerSpec(S))
+    a = il.generate(ly.LayerSpec(S))
     assert "#define ROUTE_LIGHTS 0" in a and "#define BASE_BLEND 1" in a and "#define NSPH 0" in a
     assert "closure color Base" in a and "point UV" in a and "vector Tangent" in a and "output closure color BSDF" in a
-    lights = [il.SphereLightSpec((0, 0, 2), 0.1, (1, 1, 1)),
-              il.PolygonLightSpec(((0, 0, 2), (0, 1, 2), (1, 1, 2)), (2, 2, 2))]
-    b = il.generate(il.LayerSpec(S, route="lights", lights=lights, base_blend=False))
+    lights = [ly.SphereLightSpec((0, 0, 2), 0.1, (1, 1, 1)),
+              ly.PolygonLightSpec(((0, 0, 2), (0, 1, 2), (1, 1, 2)), (2, 2, 2))]
+    b = il.generate(ly.LayerSpec(S, route="lights", lights=lights, base_blend=False))
     assert "#define ROUTE_LIGHTS 1" in b and "#define NSPH 1" in b and "#define NPOLY 1" in b and "#define BASE_BLEND 0" in b
-    empty = il.generate(il.LayerSpec(random_scratches(0)))
+    empty = il.generate(ly.LayerSpec(random_scratches(0)))
     assert "#define NCAND 4" in empty and "#define NSTORE 4" in empty
-    assert "#define NCAND 0" in il.generate(il.LayerSpec(S, candidates=0))
+    assert "#define NCAND 0" in il.generate(ly.LayerSpec(S, candidates=0))
 
 
 @pytest.mark.parametrize("kw, match", [
     (dict(sigma_um=0.0), "sigma_um"), (dict(sigma_um=np.nan), "sigma_um"), (dict(route="magic"), "route"),
     (dict(samples=0), "samples"), (dict(samples=2.5), "samples"), (dict(name="bad name"), "name"),
-    (dict(candidates=-1), "candidates"), (dict(candidates=il.MAX_CANDIDATES + 1), "candidates"),
+    (dict(candidates=-1), "candidates"), (dict(candidates=ly.MAX_CANDIDATES + 1), "candidates"),
     (dict(candidates=True), "candidates"),
     (dict(wavelengths_um=(0.5, 0.6)), "wavelengths_um"),
-    (dict(lights=[il.SphereLightSpec((0, 0, 1), 0.0, (1, 1, 1))]), "radius"),
-    (dict(lights=[il.SphereLightSpec((0, 0, 1), 0.1, (1, -1, 1))]), "radiance"),
-    (dict(lights=[il.PolygonLightSpec(((0, 0, 1), (1, 0, 1)), (1, 1, 1))]), "vertices"),
+    (dict(lights=[ly.SphereLightSpec((0, 0, 1), 0.0, (1, 1, 1))]), "radius"),
+    (dict(lights=[ly.SphereLightSpec((0, 0, 1), 0.1, (1, -1, 1))]), "radiance"),
+    (dict(lights=[ly.PolygonLightSpec(((0, 0, 1), (1, 0, 1)), (1, 1, 1))]), "vertices"),
     (dict(lights=["sun"]), "SphereLightSpec"),
 ])
 def test_bad_parameters_raise_clear_errors(kw, match):
     S = random_scratches(5, seed=0)
     with pytest.raises(ValueError, match=match):
-        il.generate(il.LayerSpec(S, **kw))
+        il.generate(ly.LayerSpec(S, **kw))
     with pytest.raises(ValueError, match="ScratchSet"):
-        il.generate(il.LayerSpec(object()))
+        il.generate(ly.LayerSpec(object()))
 
 
 @settings(max_examples=40, deadline=None)
@@ -108,7 +109,7 @@ def test_segment_box_distance_matches_brute_force(seed, size):
     p1[5:10, 0] = p0[5:10, 0]                                # axis-parallel
     lo = rng.uniform(-1, 1, (50, 2))
     hi = lo + size
-    d = il.segment_box_distance(p0, p1, lo, hi)
+    d = ly.segment_box_distance(p0, p1, lo, hi)
     # brute force: dense samples on the segment, distance to the box
     t = np.linspace(0, 1, 4001)[:, None, None]
     q = p0 + t * (p1 - p0)
@@ -121,9 +122,9 @@ def _replay_candidates(spec, uv, trials, rng):
     """numpy replay of the shader's RIS candidate stage (cell lookup, stratified quanta, binary
     search, weights 1/(NCAND p)) from the generated tables: per point the means over ``trials`` of
     R = Σ_i w_i |η_s|²_i Hbar_sum_i and ρ̂ = Σ_i w_i ρ_i, and their standard errors."""
-    tab = il.shader_tables(spec)
+    tab = ly.shader_tables(spec)
     g, packed, qb = tab["grid"], tab["packed"], tab["qbits"]
-    seg = tab["segments"].reshape(-1, il.NS).astype(np.float64)
+    seg = tab["segments"].reshape(-1, ly.NS).astype(np.float64)
     Q, K, sig = 1 << qb, spec.candidates, spec.sigma_um
     ix = np.floor((uv - g.origin) / g.cell).astype(int)
     inside = (ix >= 0).all(1) & (ix[:, 0] < g.nx) & (ix[:, 1] < g.ny)
@@ -149,7 +150,7 @@ def _replay_candidates(spec, uv, trials, rng):
             st1 = ct - (tu * x[i, 0] + tv * x[i, 1])
             st2 = st1 + L
             gap = np.maximum(0.0, np.maximum(st1, -st2))
-            inr = sb ** 2 + gap ** 2 <= (il.REACH_SIGMA * sig) ** 2
+            inr = sb ** 2 + gap ** 2 <= (ly.REACH_SIGMA * sig) ** 2
             e2 = np.exp(-sb ** 2 / (2 * sig ** 2))
             eta = np.pi * sig ** 2 * e2 ** 2 * (special.erf(st2 / sig) - special.erf(st1 / sig))
             R[i] += np.where(inr, w * eta * seg[m, 9], 0.0)
@@ -165,7 +166,7 @@ def test_ris_candidate_stage_is_unbiased(count, domain):
     # model's reach).  Reference: precompute.iridescence's eta_s_sq / area_density_point / depth_term,
     # brute force over all segments (independent of the grid, the bound and the packing).
     S = random_scratches(count, length_range=(0.05, 0.15), domain=domain, uv_scale_um=2e4, seed=count)
-    spec = il.LayerSpec(S, candidates=4).validate()
+    spec = ly.LayerSpec(S, candidates=4).validate()
     rng = np.random.default_rng(1)
     lo, hi = np.asarray(domain[:2]), np.asarray(domain[2:])
     uv = lo + (hi - lo) * rng.random((60, 2))
@@ -174,7 +175,7 @@ def test_ris_candidate_stage_is_unbiased(count, domain):
     x = uv * sc
     s_b, s1, s2 = ir.scratch_coords(x[:, None], S.p0[None] * sc, S.p1[None] * sc)
     d = point_segment_distance(uv[:, None], S.p0[None], S.p1[None]) * sc
-    inr = d <= il.REACH_SIGMA * sig
+    inr = d <= ly.REACH_SIGMA * sig
     eta = np.where(inr, ir.eta_s_sq(s_b, sig, s1, s2), 0.0)
     lam = np.asarray(RGB_WAVELENGTHS_UM)
     Hs = (S.width_um[:, None] * ir.depth_term(S.depth_um[:, None], lam[None])).sum(1) \
@@ -195,7 +196,7 @@ def test_candidate_distribution_is_exact_and_covers_every_listed_segment():
     p1 = S0.p1.copy()
     p1[:3] = S0.p0[:3]                                       # zero-length: dropped, contribute nothing
     S = ScratchSet(S0.p0, p1, S0.width_um, S0.depth_um, S0.uv_scale_um)
-    tab = il.shader_tables(il.LayerSpec(S))
+    tab = ly.shader_tables(ly.LayerSpec(S))
     g, q = tab["grid"], tab["quanta"]
     cid = np.repeat(np.arange(g.nx * g.ny), np.diff(g.start))
     tot = np.bincount(cid, weights=q, minlength=g.nx * g.ny)

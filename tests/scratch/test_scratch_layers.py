@@ -70,3 +70,23 @@ def test_const_array_literals_round_trip_float32(values):
     body = text[text.index("{") + 1:text.rindex("}")]
     parsed = np.array([float(v) for v in body.replace("\n", " ").split(",")], np.float32)
     assert np.array_equal(parsed, np.array(values, np.float32))
+
+
+def test_merged_layers_keep_the_scratched_fraction():
+    from scratch_materials.precompute.scratch.layers import LayerParams, coverage_table, layer_transforms, merged_layers
+
+    d, cbar = coverage_table()
+    for n, dens in ((32, 0.05), (32, 0.2), (16, 0.3), (64, 0.1)):
+        p = LayerParams(n, 360.0, 0.1, 1e-4, dens, seed=3)
+        q = merged_layers(p, 8)
+        assert q.n_layers == 8 and q.density > p.density
+        union = lambda k, dd: 1.0 - (1.0 - np.interp(dd, d, cbar)) ** k  # noqa: E731 - independent layers
+        # interpolation in the 61-point table: < 0.003 in c̄, so the unions agree to ~0.01
+        assert abs(union(8, q.density) - union(n, p.density)) < 0.01, (n, dens, q.density)
+        t_p, _ = layer_transforms(p)
+        t_q, _ = layer_transforms(q)
+        np.testing.assert_array_equal(t_q, t_p[:8])  # the same orientations, fewer layers
+    small = LayerParams(4, 7.0, 0.2, 2e-4, 0.6)
+    assert merged_layers(small, 8) is small
+    with pytest.raises(ValueError, match="n_max"):
+        merged_layers(small, 0)

@@ -1,4 +1,4 @@
-"""precompute.cache / exr_io: bit-exact round trips, atomic writes, corrupt files recomputed."""
+"""precompute.tables.cache / exr_io: bit-exact round trips, atomic writes, corrupt files recomputed."""
 from __future__ import annotations
 
 import os
