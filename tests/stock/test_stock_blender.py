@@ -188,6 +188,28 @@ def stock_runs(request, stock_zip, tmp_path_factory) -> dict[str, StockRun]:
     return runs
 
 
+#: The bpy 4.2 *module* (not the Blender 4.2 application) segfaults at interpreter exit once any class with
+#: a Python property callback (enum items or update) was registered, even after it was unregistered:
+#: ``SpaceType::~SpaceType`` -> ``bpy_class_free`` -> ``PyGILState_Ensure`` on a finalised interpreter
+#: (a static destructor; gdb backtrace).  This add-on-free script reproduces it; the tier attributes an
+#: exit crash of the driver to it only if the reproducer crashes the same way in the same environment.
+UPSTREAM_EXIT_CRASH = """
+import os, sys, tempfile
+os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
+import bpy
+P = type("P", (bpy.types.PropertyGroup,), {"__annotations__": {"x": bpy.props.FloatProperty(update=lambda s, c: None)}})
+bpy.utils.register_class(P)
+bpy.utils.unregister_class(P)
+print("done", flush=True)
+"""
+
+
+def upstream_exit_crash(python: Path) -> int:
+    """Exit code of the add-on-free reproducer in a stock environment (0: the upstream bug is absent)."""
+    proc = subprocess.run([str(python), "-c", UPSTREAM_EXIT_CRASH], capture_output=True, text=True, timeout=300)
+    return proc.returncode if "done" in proc.stdout else -1
+
+
 # ----------------------------------------------------------------------------- tests
 
 
@@ -217,8 +239,14 @@ def test_artist_paths(stock_runs, version, group):
         last = run.steps[-1]["name"] if run.steps else "(none)"
         crash = run.log[run.log.find("Fatal Python error"):][:2500] if "Fatal Python error" in run.log else ""
         if run.result["meta"].get("done"):
-            problems.append(f"all steps ran, but the process exited with {run.returncode} (a crash at interpreter "
-                            f"exit){crash and ':'}\n{crash}".rstrip())
+            upstream = upstream_exit_crash(stock_envs.ensure_env(version))
+            if upstream != 0 and upstream == run.returncode:
+                print(f"bpy {version}: exit {run.returncode} after every step is the bpy module's own exit crash "
+                      f"(an add-on-free PropertyGroup with an update callback exits {upstream} too)")
+            else:
+                problems.append(f"all steps ran, but the process exited with {run.returncode} (a crash at "
+                                f"interpreter exit; the add-on-free reproducer exits {upstream})"
+                                f"{crash and ':'}\n{crash}".rstrip())
         else:
             problems.append(f"driver did not finish (exit {run.returncode}, last step {last}):\n"
                             f"{crash or run.log[-2500:]}")
