@@ -1,0 +1,25 @@
+"""Generator of the tabulated-BRDF shader (``osl/tabulated_brdf.osl``).
+
+``generate`` writes the arrays of ``precompute.tables.tabulated_brdf.closure_tables`` into the
+shader (``osl.specialise``); the sampling, its density and the table layout are documented in
+``precompute.tables.tabulated_brdf``, whose ``sample`` is the shader's numpy twin.
+"""
+from __future__ import annotations
+
+from ..precompute.tables.tabulated_brdf import MAX_FLOATS, closure_tables  # noqa: F401 - re-exports
+from . import const_array, specialise
+
+
+def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> str:
+    """OSL source of the closure for ``brdf`` (``TabulatedBRDF``): ``tabulated_brdf.osl`` with its
+    tables, ISO/RES/NO/ALPHA defined.  Inputs ``Tangent`` (a Tangent node, UV map), ``Tint``;
+    output ``BSDF``.  ``alpha``: the closure's GGX alpha (default ``default_alpha(res)``)."""
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"name: expected an OSL identifier, got {name!r}")
+    tb = closure_tables(brdf, alpha)
+    D = tb.res * tb.res
+    tables = const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
+    return specialise("tabulated_brdf.osl",
+                      dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
+                           ALPHA=tb.alpha),
+                      {"tabulated_brdf_tables.h": tables}, "osl/tabulated_brdf.py")

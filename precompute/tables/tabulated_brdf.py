@@ -1,0 +1,420 @@
+"""A tabulated BRDF rendered exactly by one narrow microfacet closure per sample, with light sampling.
+
+Shared by every model that ends as a 4D table (bi-scale effective BRDFs of Wu et al. 2011, measured
+MERL BRDFs of Matusik et al. 2003, measured NDFs of Dong et al. 2015).  Cycles has no tabulated
+closure; the scratch material's *table lobes* (``precompute.scratch.lobe_table``) showed the way for
+2D slices, this module does it for a full BRDF f(ωi, ωo):
+
+**Table.**  ``TabulatedBRDF.table[i, o, c]`` is the standard (reciprocal) BRDF f in 1/sr.  ωi runs
+over the cell-centred ``res x res`` hemi-octahedral grid (p = (x, y)/(|x|+|y|+z), s = px+py,
+t = px-py; index = row*res + col, row along s; the same map as ``precompute.biscale.directions``).
+ωo runs over
+
+* ``iso=False`` (anisotropic, 4D): the same hemi-octahedral grid, in the surface frame (x = tangent);
+* ``iso=True`` (isotropic, 3D): ``n_theta`` polar angles θo_k = (k + 1/2) π / (2 n_theta) at φo = 0;
+  ωi is then expressed in the frame turned about n so that ωo has azimuth 0.
+
+``eval`` is bilinear in ωi's (s, t) and bilinear (anisotropic) or linear in θo (isotropic), clamped
+to the outermost nodes.
+
+**Sampling (the closure).**  For a view ωo (towards the viewer, z > 0):
+
+1. one ωo node o is picked with probability equal to its interpolation weight (an unbiased estimate
+   of the interpolation in ωo);
+2. a ωi cell k is drawn from row o's CDF (probability P_k), and a target point is jittered uniformly
+   in (s, t) inside the cell: ωi = v/|v|, v = (px, py, 1-|px|-|py|) (``hemi_oct_decode``);
+3. the solid-angle density of the target is  p(ωi) = P_k / (h² J(s, t)),  h = 2/res the cell side,
+   J = dω/(ds dt) = 1 / (2 |v|³) (``jacobian``);
+4. the shader emits ONE closure  W · microfacet("ggx", m, T, α, α)  with m = normalize(ωo + ωi) (the
+   micro-normal that mirrors ωo into the target) and  W = f(ωi, ωo_o) cos θi / (p(ωi) A),  A the
+   closure's albedo (``lobe_albedo``: Smith G of the narrow lobe, ≈ 1).
+
+As α → 0 the closure is a mirror into ωi, so the expectation of the rendered radiance is
+∫ eval(ωi, ωo) L(ωi) cos θi dωi, blurred only by the narrow lobe (α defaults to 1/16 of a cell).
+The closure is an ordinary Cycles microfacet lobe: next-event estimation and MIS evaluate it at light
+directions, which keeps that estimate consistent (Cycles' own eval/pdf), so lamps and environment
+light are sampled as for any glossy material.  Per-sample weights are f cos / p: the proposal P_k is
+∝ (cell average of the bilinear interpolant of row o's channel mean) x (∫_cell cos θ dω), mixed with
+a defensive fraction ``DEFENSIVE`` ∝ solid angle, so weights stay near the directional albedo.
+
+``closure_tables`` makes the arrays compiled into ``osl/tabulated_brdf.osl``; ``sample`` is the
+numpy twin of the shader (same arrays, same arithmetic); ``pdf`` the density of step 3 marginalised
+over the ωo node (the chi-square oracle).  Units: directions are unit vectors in the surface frame
+(z = normal), solid angles in steradians, BRDF values in 1/sr.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import validation
+
+__all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
+           "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
+           "MAX_RES", "MAX_FLOATS", "DEFENSIVE"]
+
+#: Largest ωi grid side.
+MAX_RES = 48
+#: Largest table compiled into a shader (floats in F): keeps the generated source below ~10 MB.
+MAX_FLOATS = 400_000
+#: Fraction of the proposal spread over all cells ∝ solid angle (bounds the weights).
+DEFENSIVE = 0.02
+
+
+# ----------------------------------------------------------------------------- the hemi-octahedral map
+def hemi_oct_encode(w) -> np.ndarray:
+    """(s, t) in [-1, 1]² of unit directions w (..., 3), z >= 0 (z clamped to 0 below)."""
+    w = np.asarray(w, np.float64)
+    z = np.maximum(w[..., 2], 0.0)
+    d = np.abs(w[..., 0]) + np.abs(w[..., 1]) + z
+    d = np.where(d > 0, d, 1.0)
+    px, py = w[..., 0] / d, w[..., 1] / d
+    return np.stack([px + py, px - py], -1)
+
+
+def hemi_oct_decode(st) -> np.ndarray:
+    """Unit directions (..., 3) of (s, t) in [-1, 1]²."""
+    st = np.asarray(st, np.float64)
+    px, py = 0.5 * (st[..., 0] + st[..., 1]), 0.5 * (st[..., 0] - st[..., 1])
+    v = np.stack([px, py, 1.0 - np.abs(px) - np.abs(py)], -1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def direction_grid(res: int) -> np.ndarray:
+    """Cell-centred res x res hemi-octahedral grid (res², 3), index = row*res + col (row along s)."""
+    c = -1.0 + (2.0 * np.arange(res) + 1.0) / res
+    S, T = np.meshgrid(c, c, indexing="ij")
+    return hemi_oct_decode(np.stack([S.ravel(), T.ravel()], -1))
+
+
+def jacobian(st) -> np.ndarray:
+    """dω/(ds dt) of the hemi-octahedral map at (s, t): 1 / (2 |v|³), v = (px, py, 1-|px|-|py|)
+    (a face element dA = √3 dpx dpy subtends (n̂·v̂) dA/|v|² = dpx dpy/|v|³; |∂p/∂(s,t)| = 1/2)."""
+    st = np.asarray(st, np.float64)
+    px, py = 0.5 * (st[..., 0] + st[..., 1]), 0.5 * (st[..., 0] - st[..., 1])
+    z = 1.0 - np.abs(px) - np.abs(py)
+    return 0.5 / np.sqrt(px * px + py * py + z * z) ** 3
+
+
+def theta_nodes(n_theta: int) -> np.ndarray:
+    """Polar angles (radians) of the isotropic table's ωo nodes: (k + 1/2) π / (2 n_theta)."""
+    return (np.arange(n_theta) + 0.5) * (0.5 * np.pi / n_theta)
+
+
+def _lin_taps(x, n):
+    """Two clamped linear taps (i0, i0+1) and the weight of i0+1 of continuous index x on n nodes."""
+    x = np.clip(x, 0.0, n - 1.0)
+    i0 = np.minimum(np.floor(x).astype(int), max(n - 2, 0))
+    return i0, np.minimum(i0 + 1, n - 1), x - i0
+
+
+def _bilinear(st, res):
+    """(indices (N, 4), weights (N, 4)) of the bilinear interpolation at (s, t) on the cell centres."""
+    xr = (st[:, 0] + 1.0) * 0.5 * res - 0.5
+    xc = (st[:, 1] + 1.0) * 0.5 * res - 0.5
+    r0, r1, fr = _lin_taps(xr, res)
+    c0, c1, fc = _lin_taps(xc, res)
+    idx = np.stack([r0 * res + c0, r0 * res + c1, r1 * res + c0, r1 * res + c1], 1)
+    w = np.stack([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc], 1)
+    return idx, w
+
+
+def _unit_rows(name, w):
+    w = np.atleast_2d(validation.finite(name, w))
+    if w.ndim != 2 or w.shape[1] != 3:
+        raise ValueError(f"{name}: expected unit vectors of shape (N, 3), got {w.shape}")
+    n = np.linalg.norm(w, axis=1, keepdims=True)
+    return w / np.where(n > 0, n, 1.0)
+
+
+# ----------------------------------------------------------------------------- the table
+@dataclass
+class TabulatedBRDF:
+    """A tabulated standard BRDF f(ωi, ωo) (1/sr, RGB); see the module docstring for the grids.
+
+    ``table`` (res², n_o, 3): n_o = res² (anisotropic) or ``n_theta`` (isotropic)."""
+    table: np.ndarray
+    res: int
+    iso: bool = False
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        validation.check_range("res", self.res, 2, MAX_RES)
+        self.res = int(self.res)
+        t = np.asarray(self.table, np.float64)
+        n_i = self.res * self.res
+        if t.ndim != 3 or t.shape[0] != n_i or t.shape[2] != 3 or (not self.iso and t.shape[1] != n_i) \
+                or (self.iso and not 2 <= t.shape[1] <= 256):
+            want = "(res², n_theta in [2, 256], 3)" if self.iso else "(res², res², 3)"
+            raise ValueError(f"table: expected shape {want} with res = {self.res}, got {t.shape}")
+        if not np.all(np.isfinite(t)) or t.min() < 0:
+            raise ValueError("table: BRDF values must be finite and >= 0")
+        self.table = t
+
+    @property
+    def n_o(self) -> int:
+        return self.table.shape[1]
+
+    def cache_key(self):
+        return {"table": self.table.astype(np.float32), "res": self.res, "iso": bool(self.iso)}
+
+    # -- frames
+    def _local(self, wi, wo):
+        """ωi in the table's frame and the ωo interpolation taps (N, k) with weights (N, k)."""
+        if not self.iso:
+            io, wto = _bilinear(hemi_oct_encode(wo), self.res)
+            return wi, io, wto
+        phi = np.arctan2(wo[:, 1], wo[:, 0])
+        c, s = np.cos(phi), np.sin(phi)
+        wl = np.stack([c * wi[:, 0] + s * wi[:, 1], -s * wi[:, 0] + c * wi[:, 1], wi[:, 2]], -1)
+        th = np.arccos(np.clip(wo[:, 2], -1, 1))
+        x = th / (0.5 * np.pi / self.n_o) - 0.5
+        i0, i1, f = _lin_taps(x, self.n_o)
+        return wl, np.stack([i0, i1], 1), np.stack([1 - f, f], 1)
+
+    def eval(self, wi, wo) -> np.ndarray:
+        """f(ωi, ωo) (N, 3) in 1/sr at unit directions (N, 3) in the surface frame; 0 below the horizon."""
+        wi, wo = _unit_rows("wi", wi), _unit_rows("wo", wo)
+        if wi.shape != wo.shape:
+            raise ValueError(f"wi, wo: expected equal shapes, got {wi.shape} and {wo.shape}")
+        wl, io, wto = self._local(wi, wo)
+        ii, wti = _bilinear(hemi_oct_encode(wl), self.res)
+        vals = self.table[ii[:, :, None], io[:, None, :]]
+        out = np.einsum("na,nb,nabc->nc", wti, wto, vals)
+        return np.where(((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None], out, 0.0)
+
+    def albedo(self, wo, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
+        """Directional albedo ∫ f cos θi dωi (N, 3) for views wo (N, 3), midpoint rule in (cos θi, φi)."""
+        wo = _unit_rows("wo", wo)
+        mu = (np.arange(n_theta) + 0.5) / n_theta
+        ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
+        M, PH = np.meshgrid(mu, ph, indexing="ij")
+        s = np.sqrt(1 - M ** 2)
+        wi = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
+        dw = (1.0 / n_theta) * (2 * np.pi / n_phi)
+        return np.array([(self.eval(wi, np.broadcast_to(w, wi.shape)) * wi[:, 2:3]).sum(0) * dw for w in wo])
+
+    def view_nodes(self) -> np.ndarray:
+        """Unit ωo of the table's ωo nodes (n_o, 3)."""
+        if not self.iso:
+            return direction_grid(self.res)
+        th = theta_nodes(self.n_o)
+        return np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], -1)
+
+    @classmethod
+    def from_function(cls, f, res: int, iso: bool = False, n_theta: int = 32, sub: int = 1, info=None):
+        """Tabulate ``f(wi, wo) -> (N, 3)`` (1/sr, surface frame) at the grid nodes; with ``sub`` > 1
+        each ωi value is the average over sub x sub points of its cell in (s, t) (box prefilter, for
+        BRDFs sharper than a cell)."""
+        validation.check_range("res", res, 2, MAX_RES)
+        validation.check_range("sub", sub, 1, 16)
+        res, sub = int(res), int(sub)
+        if iso:
+            validation.check_range("n_theta", n_theta, 2, 256)
+        h = 2.0 / res
+        c = -1.0 + (np.arange(res * sub) + 0.5) * (h / sub)
+        S, T = np.meshgrid(c, c, indexing="ij")
+        wi_all = hemi_oct_decode(np.stack([S, T], -1)).reshape(res, sub, res, sub, 3).transpose(0, 2, 1, 3, 4)
+        wi_all = wi_all.reshape(res * res, sub * sub, 3)
+        wo_nodes = (cls(np.zeros((res * res, int(n_theta), 3)), res, True) if iso
+                    else cls(np.zeros((res * res, res * res, 3)), res, False)).view_nodes()
+        out = np.empty((res * res, len(wo_nodes), 3))
+        for o, wo in enumerate(wo_nodes):
+            wi = wi_all.reshape(-1, 3)
+            v = np.asarray(f(wi, np.broadcast_to(wo, wi.shape)), np.float64).reshape(res * res, sub * sub, -1)
+            out[:, o] = np.broadcast_to(v.mean(1), (res * res, 3))
+        if not np.all(np.isfinite(out)):
+            raise ValueError("f: returned NaN or inf on the table grid")
+        return cls(np.maximum(out, 0.0), res, bool(iso), dict(info or {}))
+
+
+# ----------------------------------------------------------------------------- the closure
+def default_alpha(res: int) -> float:
+    """GGX alpha of the closure: 1/16 of a cell's angular size (≈ π/(2 res) rad per cell), so that the
+    lobe blur stays well inside a cell; floored at 2e-5 (Cycles needs alpha_x alpha_y > 2e-10)."""
+    return float(max(np.tan(0.5 * np.pi / res / 16.0), 2e-5))
+
+
+def lobe_albedo(cos_d, alpha) -> np.ndarray:
+    """Albedo of Cycles' GGX closure (F = 1) about micro-normal m for a view at cos θd = ωo·m, when the
+    lobe is narrow (α ≪ 1): the sampled weight G2/G1 with the height-correlated Smith G,
+    (1 + Λ)/(1 + 2Λ), Λ = (√(1 + α² tan² θd) - 1)/2 (Heitz 2014, eqs. 72, 99); ωi·m = ωo·m."""
+    c = np.clip(np.asarray(cos_d, np.float64), 1e-6, 1.0)
+    t2 = (1.0 - c * c) / (c * c)
+    lam = 0.5 * (np.sqrt(1.0 + alpha * alpha * t2) - 1.0)
+    return (1.0 + lam) / (1.0 + 2.0 * lam)
+
+
+def _cell_integrals(res: int, sub: int = 16):
+    """(∫_cell dω, ∫_cell cos θ dω) per cell, midpoint rule on sub x sub sub-cells."""
+    h = 2.0 / res
+    c = -1.0 + (np.arange(res * sub) + 0.5) * (h / sub)
+    S, T = np.meshgrid(c, c, indexing="ij")
+    J = jacobian(np.stack([S, T], -1)) * (h / sub) ** 2
+    cos = hemi_oct_decode(np.stack([S, T], -1))[..., 2]
+    om = J.reshape(res, sub, res, sub).sum((1, 3)).ravel()
+    omc = (J * cos).reshape(res, sub, res, sub).sum((1, 3)).ravel()
+    return om, omc
+
+
+@dataclass
+class ClosureTables:
+    """Arrays of the shader: ``F`` (res², n_o, 3) float32, ``cdf`` (n_o, res²+1) float32, ``res``,
+    ``iso``, ``alpha`` (closure GGX alpha)."""
+    F: np.ndarray
+    cdf: np.ndarray
+    res: int
+    iso: bool
+    alpha: float
+
+    @property
+    def n_o(self) -> int:
+        return self.F.shape[1]
+
+
+def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None) -> ClosureTables:
+    """The proposal CDFs (module docstring) and the float32 table of ``brdf`` for the shader."""
+    res = brdf.res
+    D = res * res
+    alpha = default_alpha(res) if alpha is None else validation.check_range("alpha", alpha, 2e-5, 0.5)
+    if brdf.table.size > MAX_FLOATS:
+        raise ValueError(f"table: {brdf.table.size} floats; at most {MAX_FLOATS} are compiled into a shader "
+                         f"(lower res or n_theta)")
+    om, omc = _cell_integrals(res)
+    g = brdf.table.mean(-1).reshape(res, res, brdf.n_o)
+    k = np.array([0.125, 0.75, 0.125])   # cell average of the clamped bilinear interpolant, per axis
+    gp = np.pad(g, ((1, 1), (0, 0), (0, 0)), mode="edge")
+    g = k[0] * gp[:-2] + k[1] * gp[1:-1] + k[2] * gp[2:]
+    gp = np.pad(g, ((0, 0), (1, 1), (0, 0)), mode="edge")
+    g = k[0] * gp[:, :-2] + k[1] * gp[:, 1:-1] + k[2] * gp[:, 2:]
+    q = g.reshape(D, brdf.n_o).T * omc[None, :]
+    tot = q.sum(1, keepdims=True)
+    q = np.where(tot > 0, q / np.where(tot > 0, tot, 1.0), om[None, :] / om.sum())
+    q = (1.0 - DEFENSIVE) * q + DEFENSIVE * om[None, :] / om.sum()
+    cdf = np.concatenate([np.zeros((brdf.n_o, 1)), np.cumsum(q, 1)], 1)
+    cdf /= cdf[:, -1:]
+    cdf[:, -1] = 1.0
+    return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha))
+
+
+def _view_taps(tb: ClosureTables, wo):
+    """ωo node taps (N, k), their weights (N, k), and the frame rotation (cos φo, sin φo) (iso) or (1, 0)."""
+    n = len(wo)
+    if not tb.iso:
+        idx, w = _bilinear(hemi_oct_encode(wo), tb.res)
+        return idx, w, np.ones(n), np.zeros(n)
+    phi = np.arctan2(wo[:, 1], wo[:, 0])
+    th = np.arccos(np.clip(wo[:, 2], -1, 1))
+    i0, i1, f = _lin_taps(th / (0.5 * np.pi / tb.n_o) - 0.5, tb.n_o)
+    return np.stack([i0, i1], 1), np.stack([1 - f, f], 1), np.cos(phi), np.sin(phi)
+
+
+def sample(tb: ClosureTables, wo, u):
+    """Numpy twin of the shader: views ``wo`` (N, 3) (surface frame, z > 0), uniform numbers ``u``
+    (N, 4) = (h_o, h_k, h_s, h_t).  Returns (ωi target (N, 3), micro-normal m (N, 3),
+    closure weight W (N, 3) = f cos θi / (p A), p (N,) the density of step 3 per steradian)."""
+    wo = _unit_rows("wo", wo)
+    u = np.atleast_2d(np.asarray(u, np.float64))
+    res, F, cdf = tb.res, tb.F.astype(np.float64), tb.cdf.astype(np.float64)
+    D, cell, N = res * res, 2.0 / res, len(wo)
+    # 1. ωo node, picked with probability = its interpolation weight (cumulative weights vs h_o)
+    taps, wts, cph, sph = _view_taps(tb, wo)
+    cw = np.cumsum(wts, 1)
+    j = np.minimum((u[:, 0:1] >= cw).sum(1), taps.shape[1] - 1)
+    o = taps[np.arange(N), j]
+    # 2. ωi cell from row o's CDF, uniform jitter in (s, t)
+    rows = cdf[o]
+    k = np.clip((rows[:, 1:] <= u[:, 1:2]).sum(1), 0, D - 1)
+    pk = rows[np.arange(N), k + 1] - rows[np.arange(N), k]
+    s = -1.0 + (k // res + u[:, 2]) * cell
+    t = -1.0 + (k % res + u[:, 3]) * cell
+    qx, qy = 0.5 * (s + t), 0.5 * (s - t)
+    v = np.stack([qx, qy, 1 - np.abs(qx) - np.abs(qy)], -1)
+    ln = np.linalg.norm(v, axis=1)
+    wl = v / ln[:, None]
+    p = pk / (cell * cell * 0.5 / ln ** 3)                     # 3. p = P_k / (h² J)
+    # f bilinear in ωi at node o
+    r0, r1, fr = _lin_taps((s + 1) * 0.5 * res - 0.5, res)
+    c0, c1, fc = _lin_taps((t + 1) * 0.5 * res - 0.5, res)
+    f = (((1 - fr) * (1 - fc))[:, None] * F[r0 * res + c0, o] + ((1 - fr) * fc)[:, None] * F[r0 * res + c1, o]
+         + (fr * (1 - fc))[:, None] * F[r1 * res + c0, o] + (fr * fc)[:, None] * F[r1 * res + c1, o])
+    # back to the surface frame (iso: the frame turned by φo)
+    wi = np.stack([cph * wl[:, 0] - sph * wl[:, 1], sph * wl[:, 0] + cph * wl[:, 1], wl[:, 2]], -1)
+    m = wi + wo
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    A = lobe_albedo(np.sum(wo * m, 1), tb.alpha)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        W = np.where(pk[:, None] > 0, f * wl[:, 2:3] / (p * A)[:, None], 0.0)
+    return wi, m, W, p
+
+
+def pdf(tb: ClosureTables, wi, wo) -> np.ndarray:
+    """Density (1/sr) of the target ωi of ``sample`` for views wo (step 3 marginalised over the ωo node)."""
+    wi, wo = _unit_rows("wi", wi), _unit_rows("wo", wo)
+    res, cdf, N = tb.res, tb.cdf.astype(np.float64), len(wo)
+    taps, wts, cph, sph = _view_taps(tb, wo)
+    wl = np.stack([cph * wi[:, 0] + sph * wi[:, 1], -sph * wi[:, 0] + cph * wi[:, 1], wi[:, 2]], -1)
+    st = hemi_oct_encode(wl)
+    cell = np.clip(((st + 1.0) * 0.5 * res).astype(int), 0, res - 1)
+    k = cell[:, 0] * res + cell[:, 1]
+    P = (cdf[taps, k[:, None] + 1] - cdf[taps, k[:, None]]) * wts
+    out = P.sum(1) / (4.0 / res ** 2 * jacobian(st))
+    return np.where((wi[:, 2] > 0) & (wo[:, 2] > 0), out, 0.0)
+
+
+# ----------------------------------------------------------------------------- the SVM / EEVEE twin
+def _ggx_unit(wi, wo, alpha):
+    """Cycles' GGX reflection (F = 1, height-correlated Smith G), standard BRDF in 1/sr."""
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    c2 = h[..., 2] ** 2
+    a2 = alpha * alpha
+    D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+
+    def lam(z):
+        z2 = np.clip(z * z, 1e-12, 1.0)
+        return 0.5 * (np.sqrt(1.0 + a2 * (1.0 - z2) / z2) - 1.0)
+    G = 1.0 / (1.0 + lam(wi[..., 2]) + lam(wo[..., 2]))
+    return D * G / (4.0 * np.maximum(wi[..., 2], 1e-6) * np.maximum(wo[..., 2], 1e-6))
+
+
+def glossy_twin(brdf: TabulatedBRDF) -> dict:
+    """A Diffuse + isotropic GGX Glossy approximation of ``brdf`` for render paths without OSL
+    (Cycles SVM, GPU, EEVEE): ``{"diffuse": RGB, "specular": RGB, "alpha": GGX alpha, "rel_l1": fit
+    error}``.  Least squares of f ≈ kd/π + ks·GGX_α over the ωo nodes with θo <= 60° and all ωi
+    (weighted by cos θi), kd, ks >= 0 per channel, α from a log grid.  Not exact: the table closure is."""
+    wo_nodes = brdf.view_nodes()
+    keep = np.nonzero(wo_nodes[:, 2] >= 0.5)[0]
+    if len(keep) == 0:
+        keep = np.array([int(np.argmax(wo_nodes[:, 2]))])
+    wi = direction_grid(brdf.res)
+    _, omc = _cell_integrals(brdf.res, 4)
+    Wi = np.repeat(wi[:, None, :], len(keep), 1)
+    Wo = np.repeat(wo_nodes[keep][None, :, :], len(wi), 0)
+    y = brdf.table[:, keep, :]                                   # (Ni, K, 3)
+    w = np.sqrt(omc)[:, None]                                    # cos-weighted least squares
+    best = None
+    for alpha in np.geomspace(0.01, 1.0, 25):
+        g = _ggx_unit(Wi, Wo, alpha)
+        Amat = np.stack([np.full_like(g, 1.0 / np.pi), g], -1) * w[..., None]
+        coef = np.zeros((2, 3))
+        for c in range(3):
+            sol, *_ = np.linalg.lstsq(Amat.reshape(-1, 2), (y[..., c] * w).ravel(), rcond=None)
+            if sol.min() < 0:   # clamp one term to zero and refit the other
+                cands = []
+                for j in (0, 1):
+                    a = Amat.reshape(-1, 2)[:, j]
+                    x = max(float(a @ (y[..., c] * w).ravel() / max(a @ a, 1e-30)), 0.0)
+                    s2 = np.zeros(2)
+                    s2[j] = x
+                    cands.append((np.sum((Amat.reshape(-1, 2) @ s2 - (y[..., c] * w).ravel()) ** 2), s2))
+                sol = min(cands, key=lambda t: t[0])[1]
+            coef[:, c] = sol
+        model = (np.stack([np.full_like(g, 1.0 / np.pi), g], -1)[..., None] * coef[None, None]).sum(-2)
+        err = float(np.sum(np.abs(model - y) * omc[:, None, None]) / max(np.sum(y * omc[:, None, None]), 1e-30))
+        if best is None or err < best[0]:
+            best = (err, alpha, coef.copy())
+    err, alpha, coef = best
+    return {"diffuse": np.clip(coef[0], 0, 1), "specular": np.clip(coef[1], 0, 1), "alpha": float(alpha),
+            "rel_l1": err}
