@@ -11,7 +11,7 @@ import bpy
 
 from . import api, materials, operators, osl_compile, panels, preferences, presets, properties, render  # noqa: F401
 from . import biscale_material, biscale_ops, iridescence_material, iridescence_ops, microgeometry_ops  # noqa: F401
-from . import tabulated_material  # noqa: F401
+from . import biscale_truth, tabulated_material  # noqa: F401
 
 _classes = (*preferences.classes, *properties.classes, *iridescence_material.classes, *operators.classes,
             *panels.classes, *biscale_ops.classes, *microgeometry_ops.classes, *iridescence_ops.classes)

@@ -10,7 +10,10 @@
     for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
   - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², F0 = Color, no diffuse);
   - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
-* ``make_biscale_material``: ``mode="fit"``: the fitted closure mixture (``precompute.biscale.fit``)
+* ``make_biscale_material``: ``mode="table"`` (what ``bake`` makes by default): the table itself as
+  a tabulated-BRDF closure (``osl/tabulated_brdf.osl``, one narrow GGX closure per sample, light
+  sampling kept; ``scratch_addon.tabulated_material``), the fitted closures as its SVM/EEVEE twin;
+  ``mode="fit"``: the fitted closure mixture (``precompute.biscale.fit``)
   as SVM nodes (Diffuse BSDF + "Scratch: Bi-scale Lobe" groups, tangent from the UV map): works on
   GPU; ``mode="reference"``: the exact table importance-sampled through ``ray_portal_bsdf`` in an
   OSL script node (``osl.biscale_reference``; OSL backend, validation renders).
@@ -25,8 +28,9 @@ import numpy as np
 from ..node_groups import biscale as biscale_groups
 from ..osl import biscale_reference
 from ..precompute.biscale import fit as fitmod
+from ..precompute.biscale import table as biscale_table
 from ..precompute.biscale.bake import bake_tables, get_tile, mesh_hash  # noqa: F401 - re-exports
-from . import osl_compile, render_paths
+from . import osl_compile, render_paths, tabulated_material
 from .materials import new_material
 
 
@@ -103,7 +107,7 @@ def small_scale_material(mat) -> dict:
     return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
 
 
-MODES = ("fit", "reference")
+MODES = ("table", "fit", "reference")
 
 
 def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = True, mode: str = "fit",
@@ -119,12 +123,18 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     node wired in as for the scratch reference shader."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
-    if mode == "reference" and brdf is None:
-        raise ValueError("brdf: the reference mode needs the EffectiveBRDF table")
+    if mode in ("reference", "table") and brdf is None:
+        raise ValueError(f"brdf: the {mode} mode needs the EffectiveBRDF table")
     if fit is None and mode == "fit":
         raise ValueError("fit: the fit mode needs a ClosureFit (precompute.biscale.fit.fit_closures)")
     if fit is None:  # the reference mode's twin where OSL cannot run
         fit = fitmod.fit_closures(brdf)
+    if mode == "table":   # the exact table as a closure; the fitted closures are its SVM / EEVEE twin
+        mat = tabulated_material.make_tabulated_material(
+            biscale_table.to_tabulated(brdf), name, svm_twin=lambda tree: _fit_closures(tree, fit, use_tilted),
+            kind="biscale")
+        mat["biscale_mode"], mat["biscale_fit_rel_l1"], mat["biscale_fit_psnr"] = mode, float(fit.rel_l1), float(fit.psnr)
+        return mat
     src = biscale_reference.generate(brdf) if mode == "reference" else None  # ValueError first
     mat = new_material(name)
     try:
@@ -187,9 +197,11 @@ def _reference_script(mat, src):
 
 
 def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None, exr_dir: str | None = None,
-         mode: str = "fit", **opts):
+         mode: str = "table", **opts):
     """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials) as a material
-    applied to ``target`` (if given): ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
+    applied to ``target`` (if given): ``mode="table"`` (default) the table as a tabulated-BRDF closure
+    (OSL; the fitted closures elsewhere), ``dir_res`` by default from the sharpest small-scale material
+    (``precompute.biscale.table.table_dir_res``); ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
     the exact table importance-sampled in OSL where Cycles runs OSL on the CPU, the fitted closures elsewhere.
     Returns (material, EffectiveBRDF, ClosureFit, info dict).  ``progress(fraction)`` is
     called between steps."""
@@ -201,11 +213,15 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
         if dr > max_res:
             raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
                              f"{max_res}, got {dr}")
+    if mode == "table" and opts.get("dir_res", 0) > biscale_table.MAX_SHADER_DIR_RES:
+        raise ValueError(f"dir_res: the table mode holds at most {biscale_table.MAX_SHADER_DIR_RES}, got {opts['dir_res']}")
     step = progress or (lambda f: None)
     step(0.0)
     V, F, M, P = tile_from_object(tile_obj, depsgraph)
     slots = [s.material for s in tile_obj.material_slots] or [None]
     materials = [small_scale_material(m) for m in slots]
+    if mode == "table" and not opts.get("dir_res"):
+        opts["dir_res"] = biscale_table.table_dir_res(materials)   # follows the sharpest small-scale material
     step(0.1)
     brdf, fit, info = bake_tables(V, F, M, P, materials, n_lobes=n_lobes, exr_dir=exr_dir,
                                   progress=lambda f: step(0.1 + 0.8 * f), **opts)

@@ -108,12 +108,16 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
                                      description="Object receiving the material (default: the other selected object)")
     n_lobes: bpy.props.IntProperty(name="Glossy Lobes", default=4, min=0, max=8)
     n_facets: bpy.props.IntProperty(name="Facets", default=10000, min=16, max=1000000)
-    dir_res: bpy.props.IntProperty(name="Direction Resolution", default=10, min=4, max=24)
+    dir_res: bpy.props.IntProperty(name="Direction Resolution", default=0, min=0, max=24,
+                                   description="Directions per side of the table (0: automatic, from the sharpest "
+                                               "small-scale material in the Exact Table mode, 10 otherwise)")
     mode: bpy.props.EnumProperty(name="Mode", items=[
+        ("TABLE", "Exact Table", "The table itself as one narrow closure per sample (OSL on the CPU, light "
+                                 "sampling kept); the fitted closures render it on GPU, SVM and EEVEE"),
         ("FIT", "Fitted Closures", "Diffuse + GGX Glossy lobes fitted to the table (SVM, GPU, light sampling)"),
         ("REFERENCE", "Exact Reference", "The table importance-sampled in OSL through ray_portal_bsdf (CPU, no "
                                          "light sampling, turns on the scene's OSL backend; validation only)")],
-        default="FIT")
+        default="TABLE")
 
     @classmethod
     def poll(cls, context):
@@ -136,13 +140,14 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
             with progress(context) as update:
                 mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes, progress=update,
                                                  depsgraph=context.evaluated_depsgraph_get(),
-                                                 mode=self.mode.lower(), n_facets=self.n_facets, dir_res=self.dir_res)
+                                                 mode=self.mode.lower(), n_facets=self.n_facets,
+                                                 dir_res=self.dir_res or (0 if self.mode == "TABLE" else 10))
         except (ValueError, RuntimeError) as exc:   # RuntimeError: OSL compile errors (OSLCompileError)
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         reused = " (tile reused)" if info["reused_tile"] else ""
         self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
-        if info["mode"] == "reference":
+        if info["mode"] in ("reference", "table"):
             ui_utils.report_render_path(self, mat, context.scene)
         return {"FINISHED"}
 
@@ -161,6 +166,8 @@ class SCRATCH_PT_biscale(bpy.types.Panel):
         layout.operator("scratch.bake_biscale")
         mat = context.material
         if mat is not None and mat.get("scratch_addon_kind") == "biscale":
+            if mat.get("biscale_mode") == "table":
+                layout.label(text=f"Exact table ({mat.get('tabulated_res', 0)}² directions, OSL); elsewhere the fitted closures")
             if mat.get("biscale_mode") == "reference":
                 layout.label(text="Exact reference (OSL, ray portal sampling); elsewhere the fitted closures")
             if "biscale_fit_psnr" in mat:

@@ -1,0 +1,115 @@
+"""Bi-scale ground truth: explicit tiles rendered by Cycles vs the baked material (Wu et al. 2011).
+
+The tile is repeated n x n (default 300 x 300) on a 4 m plane with its small-scale materials as
+ordinary Cycles BSDFs (``scratch_addon.biscale_truth``); the baked material covers a plain plane.
+Both are seen by an orthographic camera along several views, lit by a direction-coded environment
+(0.5 + 0.5 d) plus an area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 8 (full
+GI).  Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
+
+    .venv/bin/python -m bench biscale_truth [--quick] [--modes table,fit] [--gi]
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import time
+
+import numpy as np
+
+TILES = {
+    # name: (tile factory kwargs, small-scale materials)
+    "pyramid (diffuse)": ("pyramid_tile", dict(height=0.5), [{"model": "lambert", "albedo": (0.8, 0.6, 0.4)},
+                                                            {"model": "lambert", "albedo": 0.5}]),
+    "groove (diffuse + glossy)": ("groove_tile", dict(depth=0.4),
+                                  [{"model": "lambert", "albedo": 0.7},
+                                   {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0,
+                                    "ks": 0.8},
+                                   {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+}
+VIEWS = [(0.0, 0.0), (35.0, 0.0), (60.0, 90.0), (60.0, 20.0)]   # (θo, φo) degrees
+
+
+def _view(theta, phi):
+    t, p = math.radians(theta), math.radians(phi)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+def render_pair(tile, materials, mat, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None):
+    """Mean RGB of the explicit tiles and of ``mat`` on a plane for each view; returns (explicit, baked, seconds)."""
+    import bpy
+
+    from scratch_materials.scratch_addon import biscale_truth, render
+
+    tmp = tmp or tempfile.mkdtemp()
+    scene = bpy.context.scene
+    out = {"explicit": [], "baked": []}
+    secs = {"explicit": 0.0, "baked": 0.0}
+    for kind in ("explicit", "baked"):
+        for o in list(scene.objects):
+            bpy.data.objects.remove(o)
+        biscale_truth.direction_world(scene, "first")
+        if lamp:
+            render.add_light(scene, "AREA", location=(-1.5, 1.0, 2.5), energy=300.0, size=1.5)
+        if kind == "explicit":
+            biscale_truth.explicit_tile_plane(scene, tile, materials, n=n, size=4.0)
+        else:
+            render.add_plane(scene, size=4.0, material=mat)
+        for wo in views:
+            for c in [o for o in scene.objects if o.type == "CAMERA"]:
+                bpy.data.objects.remove(c)
+            up = (0, 1, 0) if abs(wo[2]) > 0.999 else None
+            loc = tuple(5 * wo + (np.array([0, -1e-3, 0]) if up else 0))
+            render.add_camera(scene, location=loc, target=(0, 0, 0), ortho_scale=0.4)
+            render.configure_cycles(scene, samples=spp, res=(res, res), seed=7, osl=True, max_bounces=bounces)
+            img, s = render.render_array(scene, tmp, f"{kind}")
+            out[kind].append(img.reshape(-1, 3).mean(0))
+            secs[kind] += s
+    return np.array(out["explicit"]), np.array(out["baked"]), secs
+
+
+def main(argv: list[str]) -> int:
+    from bench._util import blender, report
+
+    ap = argparse.ArgumentParser(prog="bench biscale_truth")
+    ap.add_argument("--quick", action="store_true", help="small bake, 100 x 100 tiles, 2 views (< 2 min)")
+    ap.add_argument("--modes", default="table,fit")
+    ap.add_argument("--gi", action="store_true", help="also full global illumination (8 bounces)")
+    ap.add_argument("--spp", type=int, default=64)
+    args = ap.parse_args(argv)
+    addon = blender()
+    from scratch_materials.precompute.biscale import geometry
+    from scratch_materials.precompute.biscale import table as btable
+    from scratch_materials.precompute.biscale.effective import BiscaleTile
+    from scratch_materials.precompute.biscale.fit import fit_closures
+    from scratch_materials.scratch_addon import biscale_material, render
+
+    render.reset_scene()
+    views = VIEWS[:2] if args.quick else VIEWS
+    n = 100 if args.quick else 300
+    rows = []
+    for name, (factory, kw, mats) in TILES.items():
+        tile = getattr(geometry, factory)(**kw)
+        res = btable.table_dir_res(mats)
+        opts = dict(n_facets=2000 if args.quick else 10000, dir_res=res)
+        t0 = time.perf_counter()
+        brdf = BiscaleTile(tile.vertices, tile.faces, tile.face_material, **opts).effective_brdf(mats)
+        t_bake = time.perf_counter() - t0
+        fit = fit_closures(brdf)
+        for bounces in ([0, 8] if args.gi else [0]):
+            for mode in args.modes.split(","):
+                mat = biscale_material.make_biscale_material(fit, name=f"{name} {mode}", mode=mode, brdf=brdf)
+                ex, bk, secs = render_pair(tile, mats, mat, [_view(*v) for v in views], n=n, spp=args.spp,
+                                           bounces=bounces)
+                err = np.abs(bk - ex).max(1) / ex.mean(1)
+                for v, e, a, b in zip(views, err, ex, bk):
+                    rows.append([name, mode, "direct" if bounces == 0 else "GI", f"{v[0]:.0f}/{v[1]:.0f}",
+                                 f"{100 * e:.1f} %", np.round(a, 4).tolist(), np.round(b, 4).tolist(),
+                                 res, f"{t_bake:.0f}"])
+                print(rows[-1], flush=True)
+    report("biscale_truth", ["tile", "mode", "light", "view θo/φo", "max rel. err", "explicit RGB", "baked RGB",
+                             "dir_res", "bake s"], rows,
+           notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp, "
+                 "direction-coded world 0.5+0.5d + area lamp (NEE on)")
+    del addon
+    return 0
