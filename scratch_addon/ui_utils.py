@@ -1,9 +1,54 @@
-"""Small helpers shared by the operators: progress reporting, material assignment, polls."""
+"""Small helpers shared by the operators: progress reporting, error and warning reports, material
+assignment, polls."""
 from __future__ import annotations
 
 import contextlib
+import warnings
 
-from . import render_paths
+from ..precompute.tables import files
+from . import osl_compile, render_paths
+
+#: What an operator reports instead of raising: bad input (ValueError), file-system faults (OSError:
+#: permission, full disk, a path through a file ...) and OSL compile errors.
+USER_ERRORS = (ValueError, OSError, osl_compile.OSLCompileError)
+
+
+def error_line(exc: BaseException) -> str:
+    """One line for the operator report (no traceback, no errno); an OSL compile error keeps its first
+    compiler message."""
+    if isinstance(exc, OSError):
+        return files.one_line(exc)
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    if not lines:
+        return type(exc).__name__
+    return lines[0] if len(lines) == 1 else f"{lines[0]} {lines[1]}"
+
+
+def report_error(op, exc: BaseException) -> set:
+    """Report ``exc`` as one ERROR line; returns ``{"CANCELLED"}`` for ``execute`` to return."""
+    op.report({"ERROR"}, error_line(exc))
+    return {"CANCELLED"}
+
+
+@contextlib.contextmanager
+def reported_warnings(op):
+    """Report user-facing warnings raised inside the block (``UserWarning``s: an unusable cache folder,
+    a cache file recomputed, ...) as WARNING lines of ``op``, each once; other warnings (numpy's
+    RuntimeWarnings, deprecations) go to the console as before."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            yield
+        finally:
+            seen = set()
+            for w in caught:
+                if not issubclass(w.category, UserWarning):
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+                    continue
+                line = " ".join(str(w.message).split())
+                if line not in seen:
+                    seen.add(line)
+                    op.report({"WARNING"}, line)
 
 
 @contextlib.contextmanager

@@ -173,12 +173,13 @@ class EffectiveBRDF:
                 "parametrisation": "hemi-octahedral cell-centred; index = row*res+col, s=px+py, t=px-py",
                 "value": "standard BRDF f = fr_bar / cos(theta_i), 1/sr, reciprocal",
                 **{k: v for k, v in self.info.items() if isinstance(v, (int, float, str))}}
-        exr_io.write_exr(path, {c: self.table[..., k].astype(np.float32) for k, c in enumerate("RGB")}, meta)
+        exr_io.write_exr(path, {c: self.table[..., k].astype(np.float32) for k, c in enumerate("RGB")}, meta,
+                         finite=True)
 
     @classmethod
     def load_exr(cls, path) -> "EffectiveBRDF":
-        ch, meta = exr_io.read_exr(path)
-        if not meta or meta.get("kind") != "biscale_effective_brdf":
+        ch, meta = exr_io.read_exr(path, finite=True)
+        if not isinstance(meta, dict) or meta.get("kind") != "biscale_effective_brdf":
             raise exr_io.ExrError(f"{path}: not a bi-scale effective BRDF table")
         return cls(np.stack([ch[c] for c in "RGB"], -1).astype(np.float64), int(meta["dir_res"]), meta)
 
