@@ -125,6 +125,11 @@ def _jsonable(v):
     return v.tolist() if hasattr(v, "tolist") else float(v)
 
 
+def shader_source(params: ScratchParams, brdf, lobe_data, **spec_options) -> str:
+    """The specialised OSL source of the scratch SV-BRDF (``osl.scratch_svbrdf.source``) for this Blender."""
+    return scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+
+
 def build(material: bpy.types.Material, params: ScratchParams, progress=None, **spec_options) -> bpy.types.Material:
     """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way.
 
@@ -139,7 +144,7 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     step(0.7)
     src = None
     if params.backend != "svm":
-        src = scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+        src = shader_source(params, brdf, lobe_data, **spec_options)
     step(0.8)
     with transaction.rebuild(material):  # the old nodes stay until the new tree is complete (compiled)
         return _build_tree(material, material.node_tree, params, src, lobe_data, svm_lobes, step)
