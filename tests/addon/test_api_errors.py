@@ -171,3 +171,34 @@ def test_bake_operator_with_an_unusable_table_folder_still_bakes(addon, scene, b
     mat = target.data.materials[0]
     assert mat["scratch_addon_kind"] == "biscale" and mat["biscale_table"].startswith(str(folder))
     assert np.isfinite(mat["biscale_fit_psnr"])
+
+
+# ----------------------------------------------------------------------------- bi-scale: user-facing option names
+
+def test_biscale_operator_errors_name_the_panel_fields_not_internal_names(addon, scene, biscale):
+    import bpy
+
+    _bmat, tile = biscale
+    with pytest.raises(RuntimeError) as err:  # a rods tile's Height field feeds geometry.rods_tile(length=...)
+        bpy.ops.scratch.add_biscale_tile(kind="RODS", height=7.0)
+    msg = str(err.value).strip()
+    assert msg.startswith("Error: Height: expected a number in") and "length" not in msg, msg
+    target = addon.render.add_plane(scene, size=2.0)
+    bpy.context.view_layer.objects.active = tile
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError) as err:  # the reference mode compiles the table into OSL: bounded size
+        bpy.ops.scratch.bake_biscale(target=target.name, mode="REFERENCE", dir_res=24, n_facets=100000)
+    msg = str(err.value).strip()
+    assert time.perf_counter() - t0 < 2.0 and len(msg.splitlines()) == 1
+    assert "Direction Resolution" in msg and "dir_res" not in msg, msg
+    assert not target.data.materials
+
+
+def test_biscale_api_unknown_option_is_named_before_the_bake(addon, scene, biscale):
+    bmat, tile = biscale
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=r"unknown bi-scale option 'facets' \(did you mean 'n_facets'\?\)"):
+        bmat.bake(tile, None, facets=100000, dir_res=16)
+    with pytest.raises(ValueError, match=r"^l_M: expected an integer in \[1, 1024\], got 0$"):
+        bmat.bake(tile, None, l_M=0, n_facets=100000)
+    assert time.perf_counter() - t0 < 2.0
