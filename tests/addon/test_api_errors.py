@@ -101,6 +101,7 @@ def test_an_unusable_cache_folder_falls_back_and_the_operator_warns(addon, scene
     _plane(addon, scene)
     not_a_folder = tmp_path / "cache_is_a_file"
     not_a_folder.write_text("x")
+    previous = tables._cache_dir  # the extension's folder, set by its preferences: restored below
     tables.set_cache_dir(not_a_folder)
     try:
         assert bpy.ops.scratch.add_preset_material(preset="fig14a_shallow") == {"FINISHED"}
@@ -124,7 +125,7 @@ def test_an_unusable_cache_folder_falls_back_and_the_operator_warns(addon, scene
         prefs.ScratchAddonPreferences.draw(type("P", (), {"layout": Layout()})(), bpy.context)
         assert any("unusable" in ln for ln in lines)
     finally:
-        tables.set_cache_dir(None)
+        tables.set_cache_dir(previous)
 
 
 # ----------------------------------------------------------------------------- bi-scale: folder checked first
@@ -159,6 +160,7 @@ def test_bake_operator_with_an_unusable_table_folder_still_bakes(addon, scene, b
     folder = tmp_path / "cache"
     folder.mkdir()
     (folder / "biscale").write_text("a file where the table folder should be")
+    previous = tables._cache_dir
     tables.set_cache_dir(folder)
     target = addon.render.add_plane(scene, size=2.0)
     for o in bpy.context.view_layer.objects:
@@ -167,7 +169,7 @@ def test_bake_operator_with_an_unusable_table_folder_still_bakes(addon, scene, b
     try:
         assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=200, dir_res=4, n_lobes=1) == {"FINISHED"}
     finally:
-        tables.set_cache_dir(None)
+        tables.set_cache_dir(previous)
     mat = target.data.materials[0]
     assert mat["scratch_addon_kind"] == "biscale" and mat["biscale_table"].startswith(str(folder))
     assert np.isfinite(mat["biscale_fit_psnr"])
