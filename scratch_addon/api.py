@@ -4,28 +4,48 @@
     mat = sa.make_material("brushed")           # a material in the current file
     sa.demo_scene("brushed")                    # or: reset and build the demo scene
     sa.render("out.png", samples=32, res=(256, 256))
+
+Bad values, unknown keywords included, raise ``ValueError`` naming the parameter and what is accepted;
+a failed rebuild of an existing material leaves it as it was (``transaction.rebuild``).
 """
 from __future__ import annotations
 
+import inspect
+import os
+
 import bpy
 
-from . import materials, presets, render as _render, scratch_material
+from . import materials, presets, render as _render, scratch_material, transaction
+from ..precompute.tables import files
+from .keywords import checked, reject_unknown
+
+#: keywords of ``make_scratched_material`` besides the scratch parameters (``scratch_material.validate``)
+_BUILD_KEYWORDS = ("name", "material", "progress")
 
 
+def scratch_parameters() -> list[str]:
+    """Names of the scratch-material parameters (``make_scratched_material``'s ``**params``)."""
+    return list(inspect.signature(scratch_material.validate).parameters)
+
+
+@checked
 def preset_names() -> list[str]:
     """Names accepted by ``make_material`` and the CLI's ``--preset``."""
     return presets.names()
 
 
+@checked
 def make_material(preset: str, **overrides) -> bpy.types.Material:
     """Build the material of a named preset; keyword arguments override its parameters."""
     p = presets.get(preset)
-    params = {**p.params, **overrides}
     if p.kind == "brushed":
-        return materials.make_brushed_material(name=f"Scratch {p.name}", **params)
+        accepted = list(inspect.signature(materials.make_brushed_material).parameters)
+        reject_unknown("make_material", overrides, accepted)
+        return materials.make_brushed_material(**{"name": f"Scratch {p.name}", **p.params, **overrides})
     return make_scratched_material(preset, **overrides)
 
 
+@checked
 def make_scratched_material(preset: str | None = None, *, name: str | None = None, material=None,
                             progress=None, **params) -> bpy.types.Material:
     """The scratch SV-BRDF material of Raymond et al. 2016; it renders in any scene as it is.
@@ -56,9 +76,12 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
                   filtered over the pixel footprint) and its node-group twin everywhere else (Cycles
                   SVM, the default and the GPU path, and EEVEE), picked per scene by a switch that
                   needs no add-on at render time; "svm": the node groups only
-    ``material``: rebuild this material in place instead of creating one.  Bad values raise
-    ``ValueError`` naming the parameter and its allowed range.
+    ``material``: rebuild this material in place instead of creating one; every parameter is checked
+    first and the new node tree replaces the old one only once it is complete, so a failure (bad value,
+    OSL compile error, OSError, KeyboardInterrupt) leaves the material exactly as it was.  Bad values
+    raise ``ValueError`` naming the parameter and its allowed range.
     """
+    reject_unknown("make_scratched_material", params, scratch_parameters() + list(_BUILD_KEYWORDS))
     merged = {}
     if preset is not None:
         p = presets.get(preset)
@@ -67,18 +90,27 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
         merged.update(p.params)
     merged.update(params)
     spec = scratch_material.validate(**merged)
-    if material is None:
-        material = materials.new_material(name or f"Scratched {preset or 'material'}")
-    scratch_material.build(material, spec, progress=progress)
+    if material is not None and not isinstance(material, bpy.types.Material):
+        raise ValueError(f"material must be a bpy.types.Material to rebuild, got {type(material).__name__}")
+    if material is not None:
+        scratch_material.build(material, spec, progress=progress)
+    else:
+        with transaction.new_datablocks():  # a failed build leaves no half material behind
+            material = materials.new_material(name or f"Scratched {preset or 'material'}")
+            scratch_material.build(material, spec, progress=progress)
     if preset is not None and hasattr(material, "scratch"):  # add-on registered: keep the UI in sync
         material.scratch.from_params(merged)
     return material
 
 
+@checked
 def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:
     """Reset the file and build the demo: a curved UV-mapped object with the preset's material
     under a studio environment plus a small area light."""
-    presets.get(preset)  # validate before wiping the file
+    p = presets.get(preset)  # validate before wiping the file
+    accepted = (inspect.signature(materials.make_brushed_material).parameters if p.kind == "brushed"
+                else scratch_parameters())
+    reject_unknown("demo_scene", overrides, accepted)
     scene = _render.reset_scene()
     material = make_material(preset, **overrides)
     if presets.get(preset).kind == "scratch":
@@ -90,11 +122,35 @@ def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:
     return scene
 
 
+def check_output_path(out) -> str:
+    """``out`` as an absolute path Blender can write (.png or .exr, folder writable, not a folder itself),
+    checked before a render rather than after it; ValueError naming ``out`` otherwise."""
+    if not isinstance(out, (str, os.PathLike)) or not os.fspath(out):
+        raise ValueError(f"out: expected an image path ending in .png or .exr, got {out!r}")
+    path = os.path.abspath(os.fspath(out))
+    if os.path.splitext(path)[1].lower() not in (".png", ".exr"):
+        raise ValueError(f"out: the image must end in .png or .exr, got {os.fspath(out)!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"out: {os.fspath(out)!r} is a folder, not an image file")
+    try:
+        files.check_writable(os.path.dirname(path))
+        if os.path.exists(path) and not os.access(path, os.W_OK):
+            raise PermissionError(13, "Permission denied", path)
+    except OSError as exc:
+        raise ValueError(f"out: cannot write {os.fspath(out)!r} ({files.one_line(exc)})") from None
+    return path
+
+
+@checked
 def render(out: str, samples: int = 32, res=(320, 240), seed: int = 0, osl: bool = False) -> float:
-    """Render the current scene on the CPU to ``out`` (.png or .exr); returns wall seconds."""
+    """Render the current scene on the CPU to ``out`` (.png or .exr; its folder is checked first);
+    returns wall seconds."""
     samples = int(materials.check_range("samples", samples, 1, 1 << 16))
+    if not isinstance(res, (tuple, list)) or len(res) != 2:
+        raise ValueError(f"res must be (width, height) in pixels, got {res!r}")
     w = int(materials.check_range("res width", res[0], 4, 16384))
     h = int(materials.check_range("res height", res[1], 4, 16384))
+    out = check_output_path(out)
     scene = bpy.context.scene
     for mat in bpy.data.materials:  # scratches follow UVs: a mesh without them cannot render them
         if mat.get("scratch_addon_kind") == "scratch_svbrdf":

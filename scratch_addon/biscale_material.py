@@ -29,8 +29,9 @@ from ..node_groups import biscale as biscale_groups
 from ..osl import biscale_reference
 from ..precompute.biscale import fit as fitmod
 from ..precompute.biscale import table as biscale_table
-from ..precompute.biscale.bake import bake_tables, get_tile, mesh_hash  # noqa: F401 - re-exports
-from . import osl_compile, render_paths, tabulated_material
+from ..precompute.biscale.bake import bake_tables, check_inputs, get_tile, mesh_hash, table_dir  # noqa: F401 - re-exports
+from . import osl_compile, render_paths, tabulated_material, transaction
+from .keywords import checked
 from .materials import new_material
 
 
@@ -110,6 +111,7 @@ def small_scale_material(mat) -> dict:
 MODES = ("table", "fit", "reference")
 
 
+@checked
 def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = True, mode: str = "fit",
                           brdf=None) -> bpy.types.Material:
     """Cycles material of a bi-scale effective BRDF.
@@ -130,25 +132,23 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     if fit is None:  # the reference mode's twin where OSL cannot run
         fit = fitmod.fit_closures(brdf)
     if mode == "table":   # the exact table as a closure; the fitted closures are its SVM / EEVEE twin
-        mat = tabulated_material.make_tabulated_material(
-            biscale_table.to_tabulated(brdf), name, svm_twin=lambda tree: _fit_closures(tree, fit, use_tilted),
-            kind="biscale")
-        mat["biscale_mode"], mat["biscale_fit_rel_l1"], mat["biscale_fit_psnr"] = mode, float(fit.rel_l1), float(fit.psnr)
+        with transaction.new_datablocks():
+            mat = tabulated_material.make_tabulated_material(
+                biscale_table.to_tabulated(brdf), name, svm_twin=lambda tree: _fit_closures(tree, fit, use_tilted),
+                kind="biscale")
+            mat["biscale_mode"], mat["biscale_fit_rel_l1"], mat["biscale_fit_psnr"] = mode, float(fit.rel_l1), float(fit.psnr)
         return mat
     src = biscale_reference.generate(brdf) if mode == "reference" else None  # ValueError first
-    mat = new_material(name)
-    try:
+    with transaction.new_datablocks():  # a failure leaves no half material (nor its script text) behind
+        mat = new_material(name)
         svm_surface = _fit_closures(mat.node_tree, fit, use_tilted)
         osl_surface = None if src is None else _reference_script(mat, src)
-    except Exception:
-        bpy.data.materials.remove(mat)
-        raise
-    render_paths.link_surface(mat.node_tree, svm_surface, osl_surface, mat.node_tree.nodes["Material Output"])
-    mat.cycles.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
-    mat["scratch_addon_kind"] = "biscale"
-    mat["biscale_mode"] = mode
-    mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
-    mat["biscale_fit_psnr"] = float(fit.psnr)
+        render_paths.link_surface(mat.node_tree, svm_surface, osl_surface, mat.node_tree.nodes["Material Output"])
+        mat.cycles.use_bump_map_correction = False  # keeps tilted lobe normals (see shared notes)
+        mat["scratch_addon_kind"] = "biscale"
+        mat["biscale_mode"] = mode
+        mat["biscale_fit_rel_l1"] = float(fit.rel_l1)
+        mat["biscale_fit_psnr"] = float(fit.psnr)
     return mat
 
 
@@ -196,6 +196,7 @@ def _reference_script(mat, src):
     return script.outputs["BSDF"]
 
 
+@checked
 def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None, exr_dir: str | None = None,
          mode: str = "table", **opts):
     """Effective BRDF of ``tile_obj`` (its material slots are the small-scale materials) as a material
@@ -204,19 +205,24 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     (``precompute.biscale.table.table_dir_res``); ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
     the exact table importance-sampled in OSL where Cycles runs OSL on the CPU, the fitted closures elsewhere.
     Returns (material, EffectiveBRDF, ClosureFit, info dict).  ``progress(fraction)`` is
-    called between steps."""
+    called between steps.  The table's folder (``exr_dir``, default the cache's ``biscale`` folder) is
+    checked before the bake; a failure leaves ``target``'s material slot as it was and no new material."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    check_inputs([{"model": "lambert"}], n_lobes, **opts)  # every option before any work (the slots come later)
     if mode == "reference":
         max_res = biscale_reference.MAX_DIR_RES
         dr = opts.get("dir_res", 10)
         if dr > max_res:
-            raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
-                             f"{max_res}, got {dr}")
+            raise ValueError(f"dir_res: the reference mode (Exact Reference) compiles the table into OSL and needs "
+                             f"dir_res <= {max_res}, got {dr}")
     if mode == "table" and opts.get("dir_res", 0) > biscale_table.MAX_SHADER_DIR_RES:
         raise ValueError(f"dir_res: the table mode holds at most {biscale_table.MAX_SHADER_DIR_RES}, got {opts['dir_res']}")
+    if target is not None and (not isinstance(target, bpy.types.Object) or target.type != "MESH"):
+        raise ValueError(f"target: expected a mesh object, got {getattr(target, 'type', type(target).__name__)!r}")
     step = progress or (lambda f: None)
     step(0.0)
+    exr_dir = table_dir(exr_dir)  # before the bake, not after it
     V, F, M, P = tile_from_object(tile_obj, depsgraph)
     slots = [s.material for s in tile_obj.material_slots] or [None]
     materials = [small_scale_material(m) for m in slots]
@@ -225,13 +231,14 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     step(0.1)
     brdf, fit, info = bake_tables(V, F, M, P, materials, n_lobes=n_lobes, exr_dir=exr_dir,
                                   progress=lambda f: step(0.1 + 0.8 * f), **opts)
-    mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf)
-    mat["biscale_table"] = info["exr"]
-    if target is not None:
-        if target.data.materials:
-            target.data.materials[target.active_material_index] = mat
-        else:
-            target.data.materials.append(mat)
+    with transaction.new_datablocks():
+        mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf)
+        mat["biscale_table"] = info["exr"] or ""
+        if target is not None:
+            if target.data.materials:
+                target.data.materials[target.active_material_index] = mat
+            else:
+                target.data.materials.append(mat)
     step(1.0)
     info["mode"] = mode
     return mat, brdf, fit, info

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..precompute.biscale import geometry as geo
 from . import ui_utils
-from .ui_utils import progress
+from .ui_utils import USER_ERRORS, op_labels, progress, report_error, reported_warnings
 
 
 def tile_mesh(kind: str, **params):
@@ -85,9 +85,8 @@ class SCRATCH_OT_add_biscale_tile(bpy.types.Operator):
                 raise ValueError(f"image: no image named {self.image!r} (load one first)")
             tile = tile_mesh(self.kind, n_sides=self.n_sides, height=self.height, depth=self.depth,
                              n_rods=self.n_rods, tilt=self.tilt, n_threads=self.n_threads, image=img, seed=self.seed)
-        except ValueError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        except USER_ERRORS as exc:  # named as in the panel: a rods tile's "length" is the Height field
+            return report_error(self, exc, op_labels(self, length="Height", height_scale="Height"))
         obj = add_tile_object(context, tile, name=f"Bi-scale {self.kind.title()}")
         for o in context.view_layer.objects:
             o.select_set(False)
@@ -136,15 +135,15 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
         if self.target and target is None:
             self.report({"ERROR"}, f"target: no object named {self.target!r}")
             return {"CANCELLED"}
-        try:
-            with progress(context) as update:
+        try:  # a failure leaves the target's material slot as it was (bmat.bake)
+            with reported_warnings(self), progress(context) as update:
                 mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes, progress=update,
                                                  depsgraph=context.evaluated_depsgraph_get(),
                                                  mode=self.mode.lower(), n_facets=self.n_facets,
-                                                 dir_res=self.dir_res or (0 if self.mode == "TABLE" else 10))
-        except (ValueError, RuntimeError) as exc:   # RuntimeError: OSL compile errors (OSLCompileError)
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+                                                 **({"dir_res": self.dir_res or 10}       # 0: automatic (table)
+                                                    if self.dir_res or self.mode != "TABLE" else {}))
+        except USER_ERRORS as exc:  # named as in the panel (Direction Resolution, not dir_res)
+            return report_error(self, exc, op_labels(self))
         reused = " (tile reused)" if info["reused_tile"] else ""
         self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
         if info["mode"] in ("reference", "table"):

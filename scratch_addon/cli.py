@@ -3,13 +3,17 @@
     blender -b -P scratch_addon/cli.py -- --preset demo --out x.png --samples 32 --res 320 240
     .venv/bin/python scratch_addon/cli.py --preset demo --out x.png --samples 32 --res 320 240
 
-Bad arguments or an unknown preset print a one-line error and exit with status 2.
+Bad arguments, an unknown preset or an output path that cannot be written (checked before anything
+is built or rendered) print a one-line error and exit with status 2; a file-system error later (the
+disk fills during the render) prints one line and exits with status 1.  Warnings (an unusable cache
+folder replaced by a temp folder, ...) are printed as one line each.
 """
 from __future__ import annotations
 
 import argparse
 import os
 import sys
+import warnings
 
 
 def _script_args(argv: list[str]) -> list[str]:
@@ -52,6 +56,13 @@ def _parser(preset_names: list[str]) -> argparse.ArgumentParser:
     return p
 
 
+def _one_line_warnings(prog: str) -> None:
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
+
+    warnings.showwarning = show
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     api = _import_api()
@@ -67,11 +78,20 @@ def main(argv: list[str] | None = None) -> int:
     if os.path.splitext(args.out)[1].lower() not in (".png", ".exr"):
         parser.error(f"--out must end in .png or .exr, got {args.out!r}")
     try:
+        api.check_output_path(args.out)  # before the scene is built and rendered, not after
+    except ValueError as exc:
+        print(f"{parser.prog}: error: --{' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    _one_line_warnings(parser.prog)
+    try:
         api.demo_scene(args.preset)
         seconds = api.render(args.out, samples=args.samples, res=tuple(args.res), seed=args.seed, osl=args.osl)
     except ValueError as exc:
-        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
+        print(f"{parser.prog}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"{parser.prog}: error: {api.files.one_line(exc)}", file=sys.stderr)
+        return 1
     w, h = args.res
     print(f"rendered {args.out} ({w}x{h}, {args.samples} spp, preset {args.preset}) in {seconds:.2f} s")
     return 0

@@ -24,7 +24,8 @@ import numpy as np
 from ..osl import iridescent_layer as layer_gen
 from ..precompute.iridescence import layer
 from ..precompute.iridescence import scratch_set
-from . import compat, materials, osl_compile, render_paths
+from . import compat, materials, osl_compile, render_paths, transaction
+from .keywords import checked
 
 
 NODE_NAME = "Iridescent Scratch Layer"
@@ -243,6 +244,7 @@ def shader_source(scratches, sigma_um=60.0, route="lobes", samples=1, base_blend
     return layer_gen.generate(spec)
 
 
+@checked
 def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samples=1, base_blend=True, scene=None,
                  candidates=4):
     """Insert (or regenerate in place) the iridescent layer on ``material``; returns the script node.
@@ -265,6 +267,12 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
         raise ValueError("scratches must be a precompute.iridescence.scratch_set.ScratchSet")
     lights = lights_from_scene(scene or bpy.context.scene) if p["route"] == "lights" else []
     src = shader_source(scratches, lights=lights, **p)
+    with transaction.rebuild(material, replace=False):  # a failure (OSL compile, ...) leaves the material as it was
+        return _insert(material, scratches, src, p, lights)
+
+
+def _insert(material, scratches, src, p, lights):
+    """The tree edits of ``insert_layer`` (run inside ``transaction.rebuild``)."""
     store_scratches(material, scratches)
     tree = materials.ensure_nodes(material)
     out = render_paths.cycles_output(tree)

@@ -9,8 +9,8 @@ from __future__ import annotations
 import bpy
 
 from . import iridescence_material as im
-from . import osl_compile, panels
-from .ui_utils import progress, report_render_path
+from . import panels
+from .ui_utils import USER_ERRORS, progress, report_error, report_render_path
 
 
 def _material(context):
@@ -47,7 +47,7 @@ def _build(mat, context, scratches=None):
                            base_blend=pg.base_blend, scene=context.scene, candidates=pg.candidates)
 
 
-_ERRORS = (ValueError, osl_compile.OSLCompileError)
+_ERRORS = USER_ERRORS  # a failed (re)build leaves the material as it was (im.insert_layer)
 
 
 class SCRATCH_OT_add_iridescent_layer(bpy.types.Operator):
@@ -66,8 +66,7 @@ class SCRATCH_OT_add_iridescent_layer(bpy.types.Operator):
                 scratches = None if im.stored_scratches(mat) is not None else _generate(_pg(mat))
                 _build(mat, context, scratches)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_error(self, exc)
         self.report({"INFO"}, f"Iridescent layer on {mat.name}")
         report_render_path(self, mat, context.scene)
         return {"FINISHED"}
@@ -130,8 +129,7 @@ class SCRATCH_OT_generate_scratch_set(bpy.types.Operator):
             else:
                 im.store_scratches(mat, scratches)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_error(self, exc)
         self.report({"INFO"}, f"{len(scratches)} scratch segments on {mat.name}")
         return {"FINISHED"}
 
@@ -175,8 +173,7 @@ class SCRATCH_OT_scratches_from_curve(bpy.types.Operator):
             else:
                 im.store_scratches(mat, s)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_error(self, exc)
         self.report({"INFO"}, f"{len(s)} scratch segments on {mat.name}")
         return {"FINISHED"}
 
@@ -206,8 +203,7 @@ class SCRATCH_OT_iridescence_preset(bpy.types.Operator):
             else:
                 im.store_scratches(mat, s)
         except _ERRORS as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            return report_error(self, exc)
         return {"FINISHED"}
 
 

@@ -21,8 +21,9 @@ from ..node_groups import microgeometry as mg_groups
 from ..precompute.microgeometry import glossy as conv
 from ..precompute.microgeometry import tables as mg_tables
 from ..precompute.microgeometry.tables import NDF_KINDS, file_sha256  # noqa: F401 - re-exports
-from . import materials, panels
-from .ui_utils import assign_material, poll_active_mesh, progress
+from . import materials, panels, transaction
+from .keywords import checked
+from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, report_error, reported_warnings
 
 # ----------------------------------------------------------------------------- material builders
 
@@ -98,24 +99,30 @@ def make_texture_material(name: str, texture, color=(0.8, 0.8, 0.8), scale: floa
     return mat, {"params": params_img, "tilt": tilt_img}, loss
 
 
+@checked
 def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavelength_um: float = 0.555,
                               ndf_kind: str = "FILTERED", synthesize: bool = False, texture_size: int = 256,
                               texel_um: float = 63.5, texture_scale: float = 1.0, seed: int = 0,
                               color=(0.8, 0.8, 0.8), name: str | None = None, progress=None):
     """Height field file -> Cycles material (average NDF, or synthesised texture if ``synthesize``).
 
-    Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}``.
+    Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}``.  A failure leaves no
+    new material or image behind.
     """
+    if not isinstance(filepath, (str, os.PathLike)):
+        raise ValueError(f"filepath: expected a path to a height-field file, got {type(filepath).__name__}")
+    filepath = os.fspath(filepath)
     filepath = bpy.path.abspath(filepath) if filepath.startswith("//") else filepath
     tables = mg_tables.compute_tables(filepath, pixel_um, sigma_um, wavelength_um, ndf_kind, synthesize, texture_size,
                                       texel_um, seed, progress)
     stem = os.path.splitext(os.path.basename(filepath))[0]
-    if synthesize:
-        mat, _, loss = make_texture_material(name or f"Microgeometry {stem} (texture)", tables["texture"], color,
-                                             texture_scale)
-    else:
-        mat, _, loss = make_average_material(name or f"Microgeometry {stem} (average)", tables["ellipsoid"], color)
-    mat["microgeometry_source"] = os.path.basename(filepath)
+    with transaction.new_datablocks():
+        if synthesize:
+            mat, _, loss = make_texture_material(name or f"Microgeometry {stem} (texture)", tables["texture"], color,
+                                                 texture_scale)
+        else:
+            mat, _, loss = make_average_material(name or f"Microgeometry {stem} (average)", tables["ellipsoid"], color)
+        mat["microgeometry_source"] = os.path.basename(filepath)
     return mat, {"ellipsoid": tables["ellipsoid"], "loss": loss, "cached": tables["cached"]}
 
 
@@ -168,14 +175,13 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
-        try:
-            with progress(context) as update:
+        try:  # a failure leaves the object's material slot as it was
+            with reported_warnings(self), progress(context) as update:
                 mat, info = material_from_heightfield(
                     self.filepath, self.pixel_um, self.sigma_um, self.wavelength_um, self.ndf_kind, self.synthesize,
                     self.texture_size, self.texel_um, self.texture_scale, self.seed, progress=update)
-        except (ValueError, OSError) as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        except USER_ERRORS as exc:
+            return report_error(self, exc)
         assign_material(obj, mat)
         loss = info["loss"]
         self.report({"WARNING"} if not loss.lossless else {"INFO"},

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import bpy
 
-from . import api, osl_compile, presets, scratch_material
-from .ui_utils import assign_material, poll_active_mesh, progress, report_render_path
+from . import api, presets, scratch_material
+from .ui_utils import (USER_ERRORS, assign_material, poll_active_mesh, progress, report_error, report_render_path,
+                       reported_warnings)
 
 
 def _preset_items(_self, _context):
@@ -32,15 +33,14 @@ class SCRATCH_OT_add_preset_material(bpy.types.Operator):
         obj = context.active_object
         p = presets.get(self.preset)
         try:
-            with progress(context) as update:
+            with reported_warnings(self), progress(context) as update:
                 if p.kind == "scratch":
                     mat = api.make_scratched_material(self.preset, progress=update)
                     mat.scratch.from_params(p.params)
                 else:
                     mat = api.make_material(self.preset)
-        except (ValueError, osl_compile.OSLCompileError) as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        except USER_ERRORS as exc:
+            return report_error(self, exc)
         assign_material(obj, mat)
         if p.kind == "scratch" and not obj.data.uv_layers:
             self.report({"WARNING"}, f"{obj.name} has no UV map: scratches follow UVs, add one")
@@ -66,13 +66,12 @@ class SCRATCH_OT_update_material(bpy.types.Operator):
 
     def execute(self, context):
         mat = context.material
-        try:
-            params = mat.scratch.to_params()
-            with progress(context) as update:
+        try:  # a failure leaves the material as it was (api.make_scratched_material)
+            with reported_warnings(self), progress(context) as update:
+                params = mat.scratch.to_params()
                 api.make_scratched_material(material=mat, progress=update, **params)
-        except (ValueError, osl_compile.OSLCompileError) as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        except USER_ERRORS as exc:
+            return report_error(self, exc)
         try:
             scratch_material.check_uvs(mat)
         except ValueError as exc:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import bpy
 
 from ..precompute.tables import cache
+from .ui_utils import USER_ERRORS, report_error, reported_warnings
 
 #: The add-on's module name as Blender knows it: the extension root package
 #: (``bl_ext.<repo>.scratch_addon`` installed, ``scratch_materials`` for TD scripts).
@@ -54,6 +55,9 @@ class ScratchAddonPreferences(bpy.types.AddonPreferences):
         layout = self.layout
         layout.prop(self, "cache_dir")
         layout.label(text=f"In use: {cache.get_cache_dir()}", icon="FILE_FOLDER")
+        problem = cache.cache_dir_problem()
+        if problem:
+            layout.label(text=f"Cache folder unusable ({problem}): using a temp folder", icon="ERROR")
         layout.operator("scratch.clear_cache", icon="TRASH")
 
 
@@ -64,7 +68,11 @@ class SCRATCH_OT_clear_cache(bpy.types.Operator):
     bl_label = "Clear Table Cache"
 
     def execute(self, _context):
-        n = cache.clear()
+        try:
+            with reported_warnings(self):
+                n = cache.clear()
+        except USER_ERRORS as exc:
+            return report_error(self, exc)
         self.report({"INFO"}, f"Removed {n} cached table(s) from {cache.get_cache_dir()}")
         return {"FINISHED"}
 

@@ -20,7 +20,7 @@ from ..precompute.scratch import layers as scratch_layers
 from ..precompute.scratch.material import (BACKENDS, BASE_TYPES, LOBE_SHAPES, MODES, ScratchParams,  # noqa: F401
                                            fit_error, tables, validate)
 from ..precompute.validation import check_range
-from . import osl_compile, render_paths
+from . import osl_compile, render_paths, transaction
 
 #: EEVEE compiles every layer into one GLSL shader, and its compile time explodes with the shader's size
 #: (software GL here, 48x32 px: 16 layers 1.8 s, 18 layers 198 s, 24 layers > 15 min; fig12d's 32 layers as 16
@@ -125,6 +125,11 @@ def _jsonable(v):
     return v.tolist() if hasattr(v, "tolist") else float(v)
 
 
+def shader_source(params: ScratchParams, brdf, lobe_data, **spec_options) -> str:
+    """The specialised OSL source of the scratch SV-BRDF (``osl.scratch_svbrdf.source``) for this Blender."""
+    return scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+
+
 def build(material: bpy.types.Material, params: ScratchParams, progress=None, **spec_options) -> bpy.types.Material:
     """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way.
 
@@ -139,10 +144,14 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     step(0.7)
     src = None
     if params.backend != "svm":
-        src = scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+        src = shader_source(params, brdf, lobe_data, **spec_options)
     step(0.8)
-    tree = material.node_tree
-    tree.nodes.clear()
+    with transaction.rebuild(material):  # the old nodes stay until the new tree is complete (compiled)
+        return _build_tree(material, material.node_tree, params, src, lobe_data, svm_lobes, step)
+
+
+def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes, step) -> bpy.types.Material:
+    """The node tree of ``build`` (added to ``tree``; ``transaction.rebuild`` removes the old nodes)."""
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     out.location = (900, 0)
     base = _base_node(tree, params)

@@ -11,11 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import warnings
 
 import numpy as np
 
-from ..tables import cache
-from .effective import BiscaleTile
+from ..tables import cache, files
+from .brdfs import material_lobes
+from .effective import BiscaleTile, check_options
 from .fit import fit_closures
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -40,6 +42,7 @@ def materials_hash(materials) -> str:
 def get_tile(V, F, M, P, color_weights=None, **opts):
     """Cached ``BiscaleTile`` (visibility + N reused when only colours or materials change); returns
     ``(tile, reused)``."""
+    opts = check_options(opts)
     key = (mesh_hash(V, F, M, P), tuple(sorted(opts.items())))
     tile = _TILE_CACHE.get(key)
     hit = tile is not None
@@ -53,11 +56,48 @@ def get_tile(V, F, M, P, color_weights=None, **opts):
     return tile, hit
 
 
+def table_dir(exr_dir: str | None = None) -> str:
+    """The writable folder the table EXR goes to, checked before a bake rather than after it.
+
+    ``exr_dir`` given: it must be usable (ValueError naming it otherwise); None: the cache folder's
+    ``biscale`` sub-folder, or the cache folder itself (with a ``CacheWarning``) if that is unusable."""
+    if exr_dir is not None:
+        try:
+            return files.check_writable(exr_dir)
+        except OSError as exc:
+            raise ValueError(f"exr_dir: cannot write the table to {os.fspath(exr_dir)!r} ({files.one_line(exc)})") from None
+    root = cache.get_cache_dir()
+    try:
+        return files.check_writable(os.path.join(root, "biscale"))
+    except OSError as exc:
+        warnings.warn(f"bi-scale table folder unusable ({files.one_line(exc)}); using {root!r}", cache.CacheWarning,
+                      stacklevel=2)
+        return root
+
+
+def check_inputs(materials, n_lobes: int = 4, **opts) -> dict:
+    """Everything a bake is given besides the mesh, checked before any work (so a bake never fails
+    after minutes on a bad option): the options (``effective.check_options``: unknown keyword or out of
+    range -> ValueError naming the keyword), ``n_lobes`` and the small-scale material dicts.  Returns the
+    completed options."""
+    if isinstance(n_lobes, (bool, np.bool_)) or not isinstance(n_lobes, (int, np.integer)) or not 0 <= n_lobes <= 8:
+        raise ValueError(f"n_lobes: expected an integer in [0, 8], got {n_lobes!r}")
+    if not isinstance(materials, (list, tuple)) or len(materials) == 0:
+        raise ValueError("materials: expected a non-empty list of material dicts")
+    for m in materials:
+        material_lobes(m)
+    return check_options(opts, also_accepted=("n_lobes", "exr_dir", "progress", "color_weights"))
+
+
 def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None, **opts):
     """Effective BRDF (eq. 8 via §3.4-3.7), its closure fit (``fit.fit_closures``) and the table saved as
-    EXR in ``exr_dir`` (default: the cache folder's ``biscale``).  ``materials``: small-scale BRDF dicts
-    (``brdfs``), one per material index.  Returns ``(brdf, fit, info)``."""
+    EXR in ``exr_dir`` (default: the cache folder's ``biscale``; checked before the bake, see ``table_dir``).
+    ``materials``: small-scale BRDF dicts (``brdfs``), one per material index.  Returns ``(brdf, fit, info)``;
+    ``info["exr"]`` is None when the table could not be written after all (the disk filled during the bake:
+    a ``CacheWarning``, the bake itself is kept)."""
     step = progress or (lambda f: None)
+    check_inputs(materials, n_lobes, **opts)
+    exr_dir = table_dir(exr_dir)
     M = np.minimum(M, len(materials) - 1)
     tile, reused = get_tile(V, F, M, P, **opts)
     step(0.3)
@@ -65,8 +105,10 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     step(0.7)
     fit = fit_closures(brdf, n_lobes=n_lobes)
     step(0.9)
-    exr_dir = exr_dir or os.path.join(cache.get_cache_dir(), "biscale")
-    os.makedirs(exr_dir, exist_ok=True)
     exr = os.path.join(exr_dir, f"biscale_{mesh_hash(V, F, M, P)}_{materials_hash(materials)}.exr")
-    brdf.save_exr(exr)
+    try:
+        brdf.save_exr(exr)
+    except OSError as exc:
+        warnings.warn(f"bi-scale table not written ({files.one_line(exc)})", cache.CacheWarning, stacklevel=2)
+        exr = None
     return brdf, fit, {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}

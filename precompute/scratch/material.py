@@ -61,16 +61,28 @@ def _as_layers(layers):
     raise ValueError(f"layers must be None (dense), an int (count), a dict or a LayerParams; got {layers!r}")
 
 
+#: keys a base dict may carry, per base type (what ``scratch_addon.scratch_material`` reads)
+BASE_KEYS = {"mirror": ("type",), "none": ("type",), "diffuse": ("type", "color"),
+             "glossy": ("type", "color", "roughness"), "principled": ("type", "color", "roughness", "metallic")}
+
+
 def _as_base(base) -> dict:
+    """The base material dict, every value checked here so a rebuild never fails half-way on it."""
     if isinstance(base, str):
         base = {"type": base}
-    if not isinstance(base, dict) or base.get("type") not in BASE_TYPES:
+    if not isinstance(base, dict) or not isinstance(base.get("type"), str) or base["type"] not in BASE_TYPES:
         raise ValueError(f"base must be one of {', '.join(BASE_TYPES)} (or a dict with 'type'); got {base!r}")
+    allowed = BASE_KEYS[base["type"]]
+    unknown = [k for k in base if k not in allowed]
+    if unknown:
+        raise ValueError(f"base: unknown key {unknown[0]!r} for a {base['type']!r} base; accepted: {', '.join(allowed)}")
     out = dict(base)
     if "color" in out:
         out["color"] = check_color("base color", out["color"])
     if "roughness" in out:
         out["roughness"] = check_range("base roughness", out["roughness"], 0.0, 1.0)
+    if "metallic" in out:
+        out["metallic"] = check_range("base metallic", out["metallic"], 0.0, 1.0)
     return out
 
 

@@ -4,37 +4,59 @@ A table is identified by a *namespace* (what it is, e.g. ``"scratch_brdf"``), a
 *version* (bumped whenever the code that computes it changes) and the *inputs*
 it was computed from.  The key is a SHA-256 of a canonical JSON rendering of
 those inputs (numpy arrays contribute dtype, shape and raw bytes), so equal
-inputs hit the same file and any change of input misses.
+inputs hit the same file in every process and session (no salted ``hash()``), and
+any change of input misses.
 
 Where files go: ``set_cache_dir()`` (the Blender add-on calls it with its
 preference or ``bpy.utils.extension_path_user(..., path="cache")``), else the
 ``SCRATCH_ADDON_CACHE`` environment variable, else ``<tempdir>/scratch_addon_cache``.
-This module never imports bpy.
+A folder that cannot be used (a regular file, no permission, a read-only parent)
+is replaced by a temp folder with a ``CacheWarning`` (``cache_dir_problem()`` says
+why).  This module never imports bpy.
 
-Files are written atomically (``exr_io.write_exr``), read back bit-exactly, and
-a corrupt or mismatching file is recomputed with a ``CacheWarning``.
+Faults and sharing:
+- files are written atomically (``exr_io.write_exr``: temp file + rename), readable by
+  the group (umask respected), and read back bit-exactly;
+- a writer killed mid-write leaves only a ``.tmp-*`` file, swept once it is older than
+  ``files.ORPHAN_AGE_S`` (on first use of a folder, then at most every ``ORPHAN_AGE_S``);
+- a corrupt file (unreadable, truncated, corrupt or mismatching metadata, NaN values)
+  is recomputed with a ``CacheWarning``; a computed table holding NaN or infinities is
+  refused (``ValueError``) and never written;
+- two processes computing the same entry both write complete files under temp names
+  and rename them into place: one file, identical contents;
+- ``clear()`` deletes only finished tables, never another process's in-flight temp
+  file, and ignores files that vanish under it.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import tempfile
+import time
 import warnings
 from typing import Callable, Mapping
 
 import numpy as np
 
-from . import exr_io
+from . import exr_io, files
 
-__all__ = ["set_cache_dir", "get_cache_dir", "code_version", "content_key", "cached_arrays", "CacheWarning", "clear"]
+__all__ = ["set_cache_dir", "get_cache_dir", "cache_dir_problem", "code_version", "content_key", "cached_arrays",
+           "CacheWarning", "clear", "sweep"]
 
 _cache_dir: str | None = None
 _PACK_WIDTH = 1024
+#: configured folder -> (folder in use, problem or None)
+_resolved: dict[str, tuple[str, str | None]] = {}
+#: folder -> time of its last orphan sweep
+_swept: dict[str, float] = {}
+#: dtypes a cache file may declare (what ``_pack`` stores exactly)
+_DTYPE_KINDS = "fiub"
 
 
 class CacheWarning(UserWarning):
-    """A cache file was unusable and its table is being recomputed."""
+    """A cache file was unusable and its table is being recomputed (or the cache folder was unusable)."""
 
 
 def set_cache_dir(path: str | os.PathLike | None) -> None:
@@ -43,11 +65,63 @@ def set_cache_dir(path: str | os.PathLike | None) -> None:
     _cache_dir = None if path is None else os.fspath(path)
 
 
+def _default_dir() -> str:
+    return os.path.join(tempfile.gettempdir(), "scratch_addon_cache")
+
+
+def _configured_dir() -> str:
+    return _cache_dir or os.environ.get("SCRATCH_ADDON_CACHE") or _default_dir()
+
+
+def _fallback_dirs(wanted: str):
+    """Temp folders to use instead of an unusable ``wanted``: the default, then a per-user one (another
+    user may own the default on a shared /tmp), then a fresh one."""
+    user = str(os.getuid()) if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
+    for d in (_default_dir(), os.path.join(tempfile.gettempdir(), f"scratch_addon_cache-{user}")):
+        if os.path.abspath(d) != os.path.abspath(wanted):
+            yield d
+    yield tempfile.mkdtemp(prefix="scratch_addon_cache-")
+
+
 def get_cache_dir() -> str:
-    """The folder cache files go to (created on demand)."""
-    d = _cache_dir or os.environ.get("SCRATCH_ADDON_CACHE") or os.path.join(tempfile.gettempdir(), "scratch_addon_cache")
-    os.makedirs(d, exist_ok=True)
-    return d
+    """The folder cache files go to (created on demand).  An unusable folder (a regular file, a path
+    through a file, no permission) is replaced by a temp folder, with one ``CacheWarning``."""
+    wanted = _configured_dir()
+    hit = _resolved.get(wanted)
+    if hit is not None and os.path.isdir(hit[0]):
+        folder = hit[0]
+    else:
+        try:
+            folder, problem = files.check_writable(wanted), None
+        except OSError as exc:
+            problem = files.one_line(exc)
+            for folder in _fallback_dirs(wanted):
+                try:
+                    folder = files.check_writable(folder)
+                    break
+                except OSError:
+                    continue
+            warnings.warn(f"cache folder {wanted!r} is unusable ({problem}); using {folder!r}", CacheWarning,
+                          stacklevel=2)
+        _resolved[wanted] = (folder, problem)
+    if time.time() - _swept.get(folder, -math.inf) > files.ORPHAN_AGE_S:
+        _swept[folder] = time.time()
+        files.sweep_orphans(folder)
+    return folder
+
+
+def cache_dir_problem() -> str | None:
+    """Why the configured cache folder is not in use (one line), or None when it is."""
+    wanted = _configured_dir()
+    if wanted not in _resolved:
+        get_cache_dir()
+    return _resolved[wanted][1]
+
+
+def sweep(max_age_s: float = files.ORPHAN_AGE_S) -> int:
+    """Delete temp files of killed writers (older than ``max_age_s``) in the cache folder and its
+    sub-folders; returns how many.  Runs by itself when a folder is first used."""
+    return files.sweep_orphans(get_cache_dir(), max_age_s)
 
 
 def _canonical(obj):
@@ -106,19 +180,63 @@ def _pack(arrays: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], dict
     return {"data": buf.reshape(rows, _PACK_WIDTH)}, {"layout": layout, "packed": True}
 
 
-def _unpack(channels: dict[str, np.ndarray], meta: dict) -> dict[str, np.ndarray]:
+def _layout(channels: dict[str, np.ndarray], meta) -> tuple[bool, list]:
+    """Validated ``(packed, layout)`` of a cache file's metadata; ExrError when it cannot describe
+    ``channels`` (not a dict, bad types, negative or inconsistent shapes, unknown dtypes)."""
+    if not isinstance(meta, dict):
+        raise exr_io.ExrError(f"corrupt metadata: expected a JSON object, got {type(meta).__name__}")
+    packed, layout = meta.get("packed"), meta.get("layout")
+    if not isinstance(packed, bool) or not isinstance(layout, list):
+        raise exr_io.ExrError("corrupt metadata: 'packed' must be a bool and 'layout' a list")
+    sizes = []
+    for item in layout:
+        ok = (isinstance(item, list) and len(item) == 3 and isinstance(item[0], str) and isinstance(item[1], str)
+              and isinstance(item[2], list)
+              and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in item[2]))
+        if not ok:
+            raise exr_io.ExrError(f"corrupt metadata: bad layout entry {item!r}")
+        try:
+            kind = np.dtype(item[1]).kind
+        except TypeError:
+            kind = None
+        if kind is None or kind not in _DTYPE_KINDS:
+            raise exr_io.ExrError(f"corrupt metadata: unsupported dtype {item[1]!r}")
+        sizes.append(math.prod(item[2]))
+    if len({item[0] for item in layout}) != len(layout):
+        raise exr_io.ExrError("corrupt metadata: duplicate array names")
+    if packed:
+        data = channels.get("data")
+        if data is None or sum(sizes) > data.size:
+            raise exr_io.ExrError("corrupt metadata: the packed layout does not fit the data channel")
+    else:
+        for (name, _dtype, _shape), n in zip(layout, sizes):
+            if name not in channels or channels[name].size != n:
+                raise exr_io.ExrError(f"corrupt metadata: array {name!r} does not match its channel")
+    return packed, layout
+
+
+def _unpack(channels: dict[str, np.ndarray], meta) -> dict[str, np.ndarray]:
+    packed, layout = _layout(channels, meta)
     out = {}
-    if meta["packed"]:
+    if packed:
         flat = channels["data"].ravel()
         offset = 0
-        for name, dtype, shape in meta["layout"]:
-            n = int(np.prod(shape, dtype=np.int64))
+        for name, dtype, shape in layout:
+            n = math.prod(shape)
             out[name] = flat[offset : offset + n].reshape(shape).astype(dtype)
             offset += n
     else:
-        for name, dtype, shape in meta["layout"]:
+        for name, dtype, shape in layout:
             out[name] = channels[name].reshape(shape).astype(dtype)
     return out
+
+
+def _check_finite(namespace: str, arrays: Mapping[str, np.ndarray]) -> None:
+    for name, a in arrays.items():
+        if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
+            bad = int(np.count_nonzero(~np.isfinite(a)))
+            raise ValueError(f"{namespace}: computed table {name!r} has {bad} NaN or infinite values of {a.size} "
+                             "(not cached)")
 
 
 def cached_arrays(
@@ -138,30 +256,51 @@ def cached_arrays(
         return {k: np.asarray(v) for k, v in compute().items()}
     key = content_key(namespace, version, inputs)
     path = _path(namespace, key)
-    if os.path.exists(path):
-        try:
-            channels, meta = exr_io.read_exr(path)
-            if not meta or meta.get("key") != key:
-                raise exr_io.ExrError(f"{path}: key mismatch")
-            return _unpack(channels, meta)
-        except (exr_io.ExrError, KeyError, ValueError, TypeError) as exc:
+    try:
+        channels, meta = exr_io.read_exr(path, finite=True)
+        if not isinstance(meta, dict) or meta.get("key") != key:
+            raise exr_io.ExrError(f"{path}: key mismatch")
+        return _unpack(channels, meta)
+    except Exception as exc:  # noqa: BLE001 - whatever is wrong with a cache file, recompute it
+        if os.path.exists(path):  # (a file that is simply not there is an ordinary miss)
             warnings.warn(f"cache file unusable, recomputing: {exc}", CacheWarning, stacklevel=2)
     result = {k: np.asarray(v) for k, v in compute().items()}
+    _check_finite(namespace, result)
     channels, meta = _pack(result)
     meta.update(key=key, namespace=namespace, version=version)
     try:
-        exr_io.write_exr(path, channels, meta)
+        exr_io.write_exr(path, channels, meta, finite=True)
     except OSError as exc:  # read-only or full disk: still return the result
-        warnings.warn(f"cache not written ({exc})", CacheWarning, stacklevel=2)
+        warnings.warn(f"cache not written ({files.one_line(exc)})", CacheWarning, stacklevel=2)
     return result
 
 
 def clear(namespace: str | None = None) -> int:
-    """Delete cache files (of one namespace, or all); returns how many were removed."""
+    """Delete cache files (of one namespace, or all); returns how many were removed.
+
+    Safe while other threads or processes write: only finished tables are deleted (never a writer's
+    in-flight ``.tmp-*`` file; orphans of killed writers are swept by age), and files that vanish or
+    cannot be deleted (a colleague's file in a shared folder) are skipped."""
     d = get_cache_dir()
     n = 0
-    for name in os.listdir(d):
-        if name.endswith(".exr") and (namespace is None or name.startswith(namespace + "-")):
-            os.unlink(os.path.join(d, name))
+    try:
+        entries = list(os.scandir(d))
+    except FileNotFoundError:
+        return 0
+    for entry in entries:
+        name = entry.name
+        if name.startswith(files.TMP_PREFIX) or not name.endswith(".exr"):
+            continue
+        if namespace is not None and not name.startswith(namespace + "-"):
+            continue
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            os.unlink(entry.path)
             n += 1
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            warnings.warn(f"cache file not removed ({files.one_line(exc)})", CacheWarning, stacklevel=2)
+    files.sweep_orphans(d)
     return n

@@ -1,16 +1,20 @@
 """Float EXR read/write for precomputed tables.
 
 Writes are atomic: the file is written under a temporary name in the target
-folder and renamed into place, so a crash never leaves a half-written table.
+folder (``files.temp_file``: mode 0o666 & ~umask, so shared folders stay readable by
+the group) and renamed into place, so a crash never leaves a half-written table; a
+killed writer's temp file is removed by ``files.sweep_orphans``.
 Values round-trip bit-exactly for float32 (EXR ``FLOAT`` channels, lossless ZIP).
+``finite=True`` (tables) rejects NaN and infinities on write and on read.
 """
 from __future__ import annotations
 
 import json
 import os
-import tempfile
 
 import numpy as np
+
+from . import files
 
 __all__ = ["write_exr", "read_exr", "ExrError"]
 
@@ -29,10 +33,18 @@ def _openexr():
     return OpenEXR
 
 
-def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: dict | None = None) -> None:
+def _check_finite(name: str, a: np.ndarray, error=ValueError, where: str = "") -> None:
+    if not np.all(np.isfinite(a)):
+        bad = int(np.count_nonzero(~np.isfinite(a)))
+        raise error(f"{where}channels[{name!r}]: {bad} of {a.size} values are NaN or infinite (a table must be finite)")
+
+
+def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: dict | None = None, *,
+              finite: bool = False) -> None:
     """Write 2D float32 arrays of equal shape as named EXR channels, atomically.
 
     ``meta`` (JSON-serialisable) is stored in the header and returned by ``read_exr``.
+    ``finite=True``: a channel holding NaN or an infinity raises ValueError and nothing is written.
     """
     OpenEXR = _openexr()
     if not channels:
@@ -45,6 +57,8 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: di
             raise ValueError(f"channels[{name!r}]: expected a non-empty 2D array, got shape {a.shape}")
         if shape is not None and a.shape != shape:
             raise ValueError(f"channels[{name!r}]: shape {a.shape} differs from {shape}")
+        if finite:
+            _check_finite(str(name), a)
         shape = a.shape
         arrays[str(name)] = a
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -53,21 +67,23 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: di
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".exr", dir=folder)
-    os.close(fd)
+    tmp = files.temp_file(folder, ".exr")
     try:
         OpenEXR.File(header, arrays).write(tmp)
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
+        try:
             os.unlink(tmp)
+        except OSError:
+            pass
         raise
 
 
-def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict | None]:
+def read_exr(path: str | os.PathLike, *, finite: bool = False) -> tuple[dict[str, np.ndarray], dict | None]:
     """Read every channel of an EXR as float32 arrays; returns ``(channels, meta)``.
 
-    Raises ``ExrError`` for missing, truncated or non-EXR files.
+    Raises ``ExrError`` for missing, truncated or non-EXR files, and with ``finite=True`` (tables) for
+    a channel holding NaN or an infinity.
     """
     OpenEXR = _openexr()
     path = os.fspath(path)
@@ -85,4 +101,7 @@ def read_exr(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict | Non
             meta = json.loads(raw if isinstance(raw, str) else raw.decode())
         except (ValueError, AttributeError) as exc:
             raise ExrError(f"{path}: corrupt metadata ({exc})") from exc
+    if finite:
+        for name, a in chans.items():
+            _check_finite(name, a, ExrError, f"{path}: ")
     return chans, meta
