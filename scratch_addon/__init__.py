@@ -11,10 +11,11 @@ import bpy
 
 from . import api, materials, operators, osl_compile, panels, preferences, presets, properties, render  # noqa: F401
 from . import biscale_material, biscale_ops, iridescence_material, iridescence_ops, microgeometry_ops  # noqa: F401
-from . import biscale_truth, tabulated_material  # noqa: F401
+from . import biscale_truth, merl_ops, tabulated_material  # noqa: F401
 
 _classes = (*preferences.classes, *properties.classes, *iridescence_material.classes, *operators.classes,
-            *panels.classes, *biscale_ops.classes, *microgeometry_ops.classes, *iridescence_ops.classes)
+            *panels.classes, *biscale_ops.classes, *microgeometry_ops.classes, *iridescence_ops.classes,
+            *merl_ops.classes)
 
 
 def register() -> None:

@@ -18,6 +18,8 @@ import bpy
 from . import materials, presets, render as _render, scratch_material, transaction
 from ..precompute.tables import files
 from .keywords import checked, reject_unknown
+from .merl_ops import material_from_merl  # noqa: F401 - public: measured BRDFs (MERL .binary)
+from .tabulated_material import make_tabulated_material  # noqa: F401 - public: any TabulatedBRDF
 
 #: keywords of ``make_scratched_material`` besides the scratch parameters (``scratch_material.validate``)
 _BUILD_KEYWORDS = ("name", "material", "progress")

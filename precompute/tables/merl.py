@@ -1,0 +1,135 @@
+"""Measured isotropic BRDFs in the MERL binary format (Matusik, Pfister, Brand, McMillan 2003, "A
+Data-Driven Reflectance Model"), rendered through the tabulated-BRDF closure
+(``precompute.tables.tabulated_brdf``).
+
+File layout (the reference reader ``BRDFRead.cpp``): three int32 dims (90, 90, 180), then three
+float64 channel blocks (R, G, B) of 90·90·180 values indexed [θh, θd, φd] in C order, scaled by
+(1/1500, 1.15/1500, 1.66/1500) to BRDF values in 1/sr; negative values mark missing samples.
+Half/difference angles (Rusinkiewicz 1998): h = normalize(ωi + ωo), θh its polar angle; ωi rotated
+by -φh about n and by -θh about the binormal gives (θd, φd).  Bins: θh index = ⌊√(θh/(π/2))·90⌋
+(denser near the specular peak), θd index = ⌊θd/(π/2)·90⌋, φd index = ⌊φd/π·180⌋ with φd folded
+into [0, π) (reciprocity).  ``lookup`` is the reference's nearest-bin lookup; ``to_tabulated``
+resamples onto the closure's isotropic grid (box-averaged over each ωi cell).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+
+import numpy as np
+
+from .. import validation
+from .tabulated_brdf import TabulatedBRDF
+
+__all__ = ["read_merl", "write_merl", "half_diff", "lookup", "bin_centres", "tabulate", "to_tabulated",
+           "SHAPE", "SCALE"]
+
+SHAPE = (90, 90, 180)
+SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
+_N = SHAPE[0] * SHAPE[1] * SHAPE[2]
+
+
+def read_merl(path) -> np.ndarray:
+    """The BRDF (90, 90, 180, 3) in 1/sr from a MERL .binary file (missing samples -> 0).
+    ValueError (naming the file) for anything that is not a complete MERL file."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            dims = np.fromfile(f, "<i4", 3)
+            data = np.fromfile(f, "<f8", 3 * _N + 1)
+    except OSError as exc:
+        raise ValueError(f"path: cannot read {path!r} ({exc.strerror or exc})") from None
+    if dims.size != 3 or tuple(int(d) for d in dims) != SHAPE:
+        raise ValueError(f"path: {path!r} is not a MERL BRDF (expected dims {SHAPE}, got {dims.tolist()})")
+    if data.size != 3 * _N:
+        raise ValueError(f"path: {path!r} has {data.size} values, a MERL BRDF has {3 * _N} (truncated or padded)")
+    t = data.reshape(3, *SHAPE).transpose(1, 2, 3, 0) * SCALE
+    t = np.where(np.isfinite(t) & (t > 0), t, 0.0)
+    return t
+
+
+def write_merl(path, table) -> None:
+    """Write ``table`` (90, 90, 180, 3), 1/sr, as a MERL .binary file (atomic: a temporary file renamed)."""
+    t = validation.finite("table", table)
+    if t.shape != (*SHAPE, 3):
+        raise ValueError(f"table: expected shape {(*SHAPE, 3)}, got {t.shape}")
+    path = os.fspath(path)
+    fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), suffix=".part")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.asarray(SHAPE, "<i4").tofile(f)
+            (t / SCALE).transpose(3, 0, 1, 2).astype("<f8").tofile(f)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def _rot(v, axis, ang):
+    """Rotate vectors v (N, 3) about the unit axis (N, 3) by ang (N,) (Rodrigues)."""
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    return v * c + np.cross(axis, v) * s + axis * np.sum(axis * v, 1, keepdims=True) * (1 - c)
+
+
+def half_diff(wi, wo):
+    """(θh, θd, φd) radians of unit direction pairs (N, 3) (surface frame, z = normal); φd in [0, 2π)."""
+    wi = np.atleast_2d(np.asarray(wi, np.float64))
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    th = np.arccos(np.clip(h[:, 2], -1, 1))
+    ph = np.arctan2(h[:, 1], h[:, 0])
+    n = np.broadcast_to([0.0, 0.0, 1.0], wi.shape)
+    b = np.broadcast_to([0.0, 1.0, 0.0], wi.shape)
+    d = _rot(_rot(wi, n, -ph), b, -th)
+    return th, np.arccos(np.clip(d[:, 2], -1, 1)), np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * np.pi)
+
+
+def _indices(th, td, pd):
+    ih = np.clip((np.sqrt(np.maximum(th, 0) / (np.pi / 2)) * 90).astype(int), 0, 89)
+    idd = np.clip((td / (np.pi / 2) * 90).astype(int), 0, 89)
+    ip = np.clip((np.mod(pd, np.pi) / np.pi * 180).astype(int), 0, 179)
+    return ih, idd, ip
+
+
+def lookup(table, wi, wo) -> np.ndarray:
+    """f(ωi, ωo) (N, 3) in 1/sr: the nearest-bin lookup of the MERL reference reader; 0 below the horizon."""
+    wi = np.atleast_2d(np.asarray(wi, np.float64))
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    out = table[_indices(*half_diff(wi, wo))]
+    return np.where(((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None], out, 0.0)
+
+
+def bin_centres():
+    """(θh, θd, φd) of every bin's centre, each (90, 90, 180), radians."""
+    th = ((np.arange(90) + 0.5) / 90) ** 2 * (np.pi / 2)
+    td = (np.arange(90) + 0.5) / 90 * (np.pi / 2)
+    pd = (np.arange(180) + 0.5) / 180 * np.pi
+    return np.meshgrid(th, td, pd, indexing="ij")
+
+
+def tabulate(f) -> np.ndarray:
+    """A MERL table (90, 90, 180, 3) of an isotropic analytic BRDF ``f(wi, wo) -> (N, 3)`` (1/sr)
+    sampled at the bin centres (pairs below the horizon get -1/SCALE, i.e. 'missing', as in MERL files:
+    stored as 0 by ``read_merl``)."""
+    TH, TD, PD = (a.ravel() for a in bin_centres())
+    h = np.stack([np.sin(TH), np.zeros_like(TH), np.cos(TH)], -1)
+    d = np.stack([np.sin(TD) * np.cos(PD), np.sin(TD) * np.sin(PD), np.cos(TD)], -1)
+    b = np.broadcast_to([0.0, 1.0, 0.0], d.shape)
+    wi = _rot(d, b, TH)                              # diff frame -> surface frame (φh = 0)
+    wo = 2 * np.sum(wi * h, 1, keepdims=True) * h - wi
+    out = np.zeros((len(wi), 3))
+    ok = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    out[ok] = f(wi[ok], wo[ok])
+    return out.reshape(*SHAPE, 3)
+
+
+def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int = 2) -> TabulatedBRDF:
+    """The MERL BRDF on the isotropic grid of the tabulated closure (``res`` x ``res`` ωi cells, each
+    the average of ``sub``² nearest-bin lookups; ``n_theta`` view angles)."""
+    t = np.asarray(table, np.float64)
+    if t.shape != (*SHAPE, 3):
+        raise ValueError(f"table: expected shape {(*SHAPE, 3)}, got {t.shape}")
+    return TabulatedBRDF.from_function(lambda wi, wo: lookup(t, wi, wo), res, iso=True, n_theta=n_theta, sub=sub,
+                                       info={"source": "merl"})
