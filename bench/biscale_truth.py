@@ -76,6 +76,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--modes", default="table,fit")
     ap.add_argument("--gi", action="store_true", help="also full global illumination (8 bounces)")
     ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
     args = ap.parse_args(argv)
     addon = blender()
     from scratch_materials.precompute.biscale import geometry
@@ -85,6 +86,8 @@ def main(argv: list[str]) -> int:
     from scratch_materials.scratch_addon import biscale_material, render
 
     render.reset_scene()
+    if args.figure:
+        return figure(args.spp)
     views = VIEWS[:2] if args.quick else VIEWS
     n = 100 if args.quick else 300
     rows = []
@@ -112,4 +115,50 @@ def main(argv: list[str]) -> int:
            notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp, "
                  "direction-coded world 0.5+0.5d + area lamp (NEE on)")
     del addon
+    return 0
+
+
+def figure(spp: int = 64) -> int:
+    """Explicit tiles | exact table | fitted closures for the pyramid tile at θo = 35°, direct light,
+    96x96 px, saved as docs/img/biscale_truth.png."""
+    import bpy
+
+    from bench._util import ROOT, pyplot
+    from scratch_materials.precompute.biscale import geometry
+    from scratch_materials.precompute.biscale.effective import BiscaleTile
+    from scratch_materials.scratch_addon import biscale_material, biscale_truth, render
+
+    factory, kw, mats = TILES["pyramid (diffuse)"]
+    tile = getattr(geometry, factory)(**kw)
+    brdf = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10).effective_brdf(mats)
+    from scratch_materials.precompute.biscale.fit import fit_closures
+    fit = fit_closures(brdf)
+    tmp = tempfile.mkdtemp()
+    imgs = []
+    scene = bpy.context.scene
+    for kind in ("explicit", "table", "fit"):
+        for o in list(scene.objects):
+            bpy.data.objects.remove(o)
+        biscale_truth.direction_world(scene, "first")
+        render.add_light(scene, "AREA", location=(-1.5, 1.0, 2.5), energy=300.0, size=1.5)
+        if kind == "explicit":
+            biscale_truth.explicit_tile_plane(scene, tile, mats, n=100, size=4.0)
+        else:
+            render.add_plane(scene, size=4.0, material=biscale_material.make_biscale_material(
+                fit, name=kind, mode=kind, brdf=brdf))
+        render.add_camera(scene, location=tuple(5 * _view(35, 0)), target=(0, 0, 0), ortho_scale=1.2)
+        render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=0)
+        img, _ = render.render_array(scene, tmp, kind)
+        imgs.append(img)
+    plt = pyplot()
+    fig, ax = plt.subplots(1, 3, figsize=(9, 3.3))
+    for a, im, title in zip(ax, imgs, ("explicit 100x100 tiles", "exact table (closure)", "fitted closures")):
+        a.imshow(np.clip(im, 0, 1) ** (1 / 2.2))
+        a.set_title(f"{title}\nmean {im.mean():.4f}", fontsize=9)
+        a.axis("off")
+    fig.tight_layout()
+    out = ROOT / "docs" / "img" / "biscale_truth.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    print(out, [float(im.mean()) for im in imgs])
     return 0
