@@ -163,6 +163,25 @@ def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane"):
     return obj
 
 
+def add_sphere(scene, material=None, radius: float = 1.0, name: str = "Sphere", segments: int = 64, rings: int = 32):
+    """A UV-mapped smooth UV sphere centred at the origin (U around z, V from pole to pole)."""
+    import bmesh
+
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")  # create_uvsphere fills UVs only into an existing layer
+    bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius, calc_uvs=True)
+    for f in bm.faces:
+        f.smooth = True
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    if material is not None:
+        mesh.materials.append(material)
+    return obj
+
+
 def add_torus(scene, material=None, major: float = 1.0, minor: float = 0.4, name: str = "Torus"):
     """A UV-mapped smooth torus (U runs around the ring), a curved test object."""
     import bmesh
