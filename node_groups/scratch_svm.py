@@ -105,8 +105,12 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
-          name: str = "scratch") -> bpy.types.NodeSocket:
-    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4)."""
+          name: str = "scratch", cost_off: int = 0) -> bpy.types.NodeSocket:
+    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4).
+
+    ``cost_off`` (bench/scratch_cost.py only) switches stages off to time them, as the OSL ``COST_OFF``:
+    bit 1 the layer Voronoi (a grid of cell centres instead), 4 the CDF search (bin straight from h),
+    8 the closure set-up (untilted white lobe)."""
     g = _G(tree)
     geo = g.node("ShaderNodeNewGeometry")
     tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
@@ -143,11 +147,15 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
                                         1.0 / layers.length), float(xi_k[k][0]))
             yy = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], -s_), g.math("MULTIPLY", uvs[1], c)),
                                         1.0 / layers.width), float(xi_k[k][1]))
-            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
-            vor.inputs["Scale"].default_value = 1.0
-            vor.inputs["Randomness"].default_value = 1.0
-            g._set(vor.inputs["Vector"], g.combine(yx, yy))
-            a = g.math("LESS_THAN", vor.outputs["Distance"], float(layers.density) + 1e-7)  # [F1]_d, eq. 7
+            if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
+                dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", g.combine(yx, yy)), (0.5, 0.5, 0.0)))
+            else:
+                vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+                vor.inputs["Scale"].default_value = 1.0
+                vor.inputs["Randomness"].default_value = 1.0
+                g._set(vor.inputs["Vector"], g.combine(yx, yy))
+                dist = vor.outputs["Distance"]
+            a = g.math("LESS_THAN", dist, float(layers.density) + 1e-7)  # [F1]_d, eq. 7
             alphas.append(a)
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
@@ -175,7 +183,8 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
 
     if table:
-        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, noise((39.346, 11.135, 83.155)), tint)
+        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, noise((39.346, 11.135, 83.155)), tint,
+                              cost_off)
     else:
         scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
     if layers is None:
@@ -265,7 +274,7 @@ def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types
     return _data_image(f"{name}.C", c), _data_image(f"{name}.B", b)
 
 
-def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
+def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint, cost_off=0):
     """One tabulated-tilt lobe (``precompute.scratch.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
     binary search of h in the slice's CDF (log2 M image lookups), aim φi inside the picked bin, a
     narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b (eq. 2)."""
@@ -281,12 +290,14 @@ def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
         return tex
 
     lo, hi = 0.0, float(M)
-    for _ in range(int(math.log2(M))):  # hi - lo halves every step: M = 2^L
+    for _ in range(0 if cost_off & 4 else int(math.log2(M))):  # hi - lo halves every step: M = 2^L
         mid = g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", lo, hi), 0.5))
         # cdf[mid] <= h (the R channel: a Color socket into a Math node would be converted to grey)
         go = g.math("LESS_THAN", g.separate(fetch(img_c, mid, M + 1).outputs["Color"])[0], g.math("ADD", h, 1e-12))
         lo = g.math("ADD", lo, g.math("MULTIPLY", go, g.math("SUBTRACT", mid, lo)))
         hi = g.math("ADD", hi, g.math("MULTIPLY", g.math("SUBTRACT", 1.0, go), g.math("SUBTRACT", mid, hi)))
+    if cost_off & 4:  # bench: no CDF search
+        lo = g.math("MINIMUM", g.math("FLOOR", g.math("MULTIPLY", h, float(M))), M - 1.0)
     c0 = fetch(img_c, lo, M + 1)
     c1 = fetch(img_c, g.math("ADD", lo, 1.0), M + 1)
     c0r, P, gamma = g.separate(c0.outputs["Color"])
@@ -318,6 +329,13 @@ def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
     g._set(glossy.inputs["Color"], colour)
     rough, aniso = glossy_node_params(ax, min(ay, 1.0))
+    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and fr kept alive)
+        for link in list(glossy.inputs["Color"].links):
+            g.tree.links.remove(link)
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", g.math("ADD", lo, fr), 1e-9), 1.0), rough))
+        g._set(glossy.inputs["Anisotropy"], aniso)
+        g._set(glossy.inputs["Tangent"], u)
+        return glossy.outputs[0]
     g._set(glossy.inputs["Roughness"], rough)
     g._set(glossy.inputs["Anisotropy"], aniso)
     g._set(glossy.inputs["Normal"], n_l)

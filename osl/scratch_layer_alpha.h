@@ -4,6 +4,11 @@
 // Needs: parameters UV, Length, Width, Density, output Alpha; tables THETA_K[NL], XI_K[2 NL], COV,
 // COV_DMAX; NL and ALPHA_CULL defined; disk_overlap (scratch_layers.h) and Cycles' node_voronoi.h.
 // Declares: alpha[NL], alpha_sum (= sum_k alpha_k, also written to Alpha).
+// COST_OFF (bench/scratch_cost.py only; default 0) switches stages off to time them: bit 1 = layer
+// Voronoi (feature points at the cell centres, no hash), bit 2 = footprint α (binary [F1 <= d] at the point).
+#ifndef COST_OFF
+#define COST_OFF 0
+#endif
 
     // UV and its footprint. Cycles' ray differentials are isotropic (no foreshortening), so the
     // footprint is stretched by 1/cos(view) along the view direction projected into the surface.
@@ -36,8 +41,12 @@
         // footprint semi-axes in noise space
         float e1x = (ck * a1u + sk * a1v) * inv_l, e1y = (-sk * a1u + ck * a1v) * inv_w;
         float e2x = (ck * a2u + sk * a2v) * inv_l, e2y = (-sk * a2u + ck * a2v) * inv_w;
+#if COST_OFF & 2
+        float spread = 0.0, fade = 0.0;  // bench: no footprint
+#else
         float spread = max(hypot(e1x, e1y), hypot(e2x, e2y));
         float fade = smoothstep(0.2, 0.8, spread);  // footprint spans cells: converge to c̄(d)
+#endif
         float a = cbar;
         if (fade < 1.0) {
             // α over a disk footprint of radius R = spread: the disk-disk overlap with each
@@ -59,14 +68,20 @@
                 for (int i = -1; i <= 1; i++) {
                     float bx = (i < 0) ? fx : ((i > 0) ? 1.0 - fx : 0.0);
                     if (bx * bx + by * by >= reach * reach) continue;
-#if VORONOI_INT2  // Blender >= 5.0 hashes integer cells (node_voronoi.h)
+#if COST_OFF & 1  // bench: no Voronoi hash (feature points at the cell centres)
+                    vector2 fp = cell_f + vector2(i + 0.5, j + 0.5);
+#elif VORONOI_INT2  // Blender >= 5.0 hashes integer cells (node_voronoi.h)
                     int2 off = {i, j};
                     vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
 #else             // Blender 4.2-4.5 hash float cell coordinates
                     vector2 off = vector2(i, j);
                     vector2 fp = cell_f + off + hash_vector2_to_vector2(cell_f + off);
 #endif
+#if COST_OFF & 2
+                    if (distance(fp, y) <= d) miss = 0.0;
+#else
                     miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
+#endif
                 }
             }
             a = mix(1.0 - miss, cbar, fade);

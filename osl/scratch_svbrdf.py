@@ -101,6 +101,8 @@ class ShaderSpec:
     name: str = "scratch_svbrdf"
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
     voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
+    cost_off: int = 0                       # bench/scratch_cost.py only: COST_OFF stage bits (1 Voronoi, 2 footprint
+                                            # α, 4 CDF search, 8 closure set-up; table lobes), 0 in every material
 
 
 @dataclass
@@ -198,6 +200,8 @@ def generate(spec: ShaderSpec) -> str:
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))
         tables.append(_layer_arrays(spec))
     flags.update(ALPHA_CULL=ALPHA_CULL, VORONOI_INT2=bool(spec.voronoi_int2))
+    if spec.cost_off:
+        flags["COST_OFF"] = int(spec.cost_off)
     return specialise("scratch_svbrdf.osl", flags, {"scratch_svbrdf_tables.h": "\n".join(tables)},
                       "osl/scratch_svbrdf.py")
 

@@ -148,7 +148,8 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     base = _base_node(tree, params)
     if base is not None:
         base.location = (-200, -250)
-    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base), "osl": None, "eevee": None}
+    cost_off = int(spec_options.get("cost_off", 0))  # bench/scratch_cost.py only
+    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base, cost_off=cost_off), "osl": None, "eevee": None}
     if params.layers is not None and params.layers.n_layers > EEVEE_MAX_LAYERS:
         preview = dataclasses.replace(params, layers=scratch_layers.merged_layers(params.layers, EEVEE_MAX_LAYERS))
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
@@ -173,13 +174,14 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
 
 
 def _build_svm(tree, material, params: ScratchParams, lobe_data, base, label="SVM path (Cycles SVM / GPU, EEVEE)",
-               offset=(-1400, -600)) -> bpy.types.NodeSocket:
+               offset=(-1400, -600), cost_off: int = 0) -> bpy.types.NodeSocket:
     """A node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
     layers = params.layers
     theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
     before = set(tree.nodes)
     surface = scratch_svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
-                                base_socket=None if base is None else base.outputs[0], name=material.name)
+                                base_socket=None if base is None else base.outputs[0], name=material.name,
+                                cost_off=cost_off)
     frame = tree.nodes.new("NodeFrame")
     frame.label = label
     for node in set(tree.nodes) - before - {frame}:
