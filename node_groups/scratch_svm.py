@@ -101,7 +101,7 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
     rough, aniso = glossy_node_params(np.full_like(ay, alpha_x), np.minimum(ay, 1.0))  # Cycles clamps alpha to 1
     p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
     jit = np.asarray(entry.get("jitters", np.zeros((S, K))), np.float32)[..., None]
-    return _data_image(f"{name}.W", np.concatenate([w, jit], -1)), _data_image(f"{name}.P", p)
+    return _data_image("Scratch lobes W", np.concatenate([w, jit], -1)), _data_image("Scratch lobes P", p)
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
@@ -117,74 +117,79 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     uvn = g.node("ShaderNodeUVMap")
     N = geo.outputs["Normal"]
     wo = geo.outputs["Incoming"]  # towards the viewer
-    # t = normalize(T - (T.N) N), b = N x t
-    T = tan.outputs["Tangent"]
-    t = g.vmath("NORMALIZE", g.vmath("SUBTRACT", T, g.vmath("SCALE", N, scale=g.vmath("DOT_PRODUCT", T, N))))
-    b = g.vmath("CROSS_PRODUCT", N, t)
-    # per-sample random numbers (P jitters per sample, as in the OSL path)
-    def noise(k):
+    # t: Cycles' Tangent node is already orthonormalised against the shading normal (cross(N, cross(T, N)))
+    t = tan.outputs["Tangent"]
+    table = "cdf" in lobe_data
+
+    # per-sample random numbers (P jitters per sample, as in the OSL path): the slice, layer and lobe
+    # numbers are the three channels of one hash; the aim inside a table bin a second hash
+    w_hash = g.vmath("DOT_PRODUCT", wo, (12.9898, 78.233, 37.719))
+
+    def noise(offset, channels=False):
         wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D")
         g._set(wn.inputs["Vector"], geo.outputs["Position"])
-        g._set(wn.inputs["W"], g.math("ADD", g.vmath("DOT_PRODUCT", wo, k), 17.0 * k[0]))
-        return wn.outputs["Value"]
+        g._set(wn.inputs["W"], g.math("ADD", w_hash, offset) if offset else w_hash)
+        return g.separate(wn.outputs["Color"]) if channels else wn.outputs["Value"]
 
-    h_slice, h_layer = noise((12.9898, 78.233, 37.719)), noise((93.989, 67.345, 24.113))
+    h_slice, h_layer, h_lobe = noise(0.0, channels=True)
+    h_frac = noise(17.0) if table else None
     # tilt jitter (stochastic box lobes): one offset in [-1, 1) per sample, scaled per lobe
-    jittered = "cdf" not in lobe_data and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
-                                              for e in (lobe_data["m"], lobe_data["0"]))
-    h_jit = g.math("SUBTRACT", g.math("MULTIPLY", noise((57.193, 29.917, 64.433)), 2.0), 1.0) if jittered else None
+    jittered = not table and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
+                                 for e in (lobe_data["m"], lobe_data["0"]))
+    h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
     if layers is None:
-        theta_sel = 0.0
+        theta_sel = None
         alpha_sum = 1.0
     else:
         uv = uvn.outputs["UV"]
-        uvs = g.separate(uv)
-        alphas, acc, accs = [], None, []
+        acc, accs = None, []
         for k in range(layers.n_layers):
-            c, s_ = math.cos(theta_k[k]), math.sin(theta_k[k])
-            yx = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], c), g.math("MULTIPLY", uvs[1], s_)),
-                                        1.0 / layers.length), float(xi_k[k][0]))
-            yy = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], -s_), g.math("MULTIPLY", uvs[1], c)),
-                                        1.0 / layers.width), float(xi_k[k][1]))
+            y = layer_coordinates(g, uv, theta_k[k], layers.length, layers.width, xi_k[k])
             if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
-                dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", g.combine(yx, yy)), (0.5, 0.5, 0.0)))
+                dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
             else:
                 vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
                 vor.inputs["Scale"].default_value = 1.0
                 vor.inputs["Randomness"].default_value = 1.0
-                g._set(vor.inputs["Vector"], g.combine(yx, yy))
+                g._set(vor.inputs["Vector"], y)
                 dist = vor.outputs["Distance"]
             a = g.math("LESS_THAN", dist, float(layers.density) + 1e-7)  # [F1]_d, eq. 7
-            alphas.append(a)
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
         alpha_sum = acc
+        # layer k is picked when acc_{k-1} <= target < acc_k (probability α_k / ᾱ): from the last layer
+        # back, Θ = Θ_k wherever target < acc_k (one Less Than and one Mix per layer)
         target = g.math("MULTIPLY", h_layer, alpha_sum)
-        theta_sel, prev = None, None
-        for k, acc_k in enumerate(accs):  # layer k is picked when acc_{k-1} <= target < acc_k
-            below = g.math("LESS_THAN", target, acc_k)
-            sel = below if prev is None else g.math("SUBTRACT", below, prev)
-            prev = below
-            term = g.math("MULTIPLY", sel, float(theta_k[k]))
-            theta_sel = term if theta_sel is None else g.math("ADD", theta_sel, term)
-    # scratch frame of the picked layer
-    u = g.vmath("ADD", g.vmath("SCALE", t, scale=g.math("COSINE", theta_sel)), g.vmath("SCALE", b, scale=g.math("SINE", theta_sel)))
+        theta_sel = float(theta_k[-1])
+        for k in range(layers.n_layers - 2, -1, -1):
+            mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
+            g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
+            g._set(mix.inputs[2], theta_sel)
+            g._set(mix.inputs[3], float(theta_k[k]))
+            theta_sel = mix.outputs[0]
+    # scratch frame of the picked layer: u = cos Θ t + sin Θ (N x t) = t rotated about N by Θ, v = N x u
+    if theta_sel is None:
+        u = t
+    else:
+        rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
+        g._set(rot.inputs["Vector"], t)
+        g._set(rot.inputs["Axis"], N)
+        g._set(rot.inputs["Angle"], theta_sel)
+        u = rot.outputs["Vector"]
     v = g.vmath("CROSS_PRODUCT", N, u)
-    theta_o = g.math("ARCSINE", g.math("MINIMUM", g.math("MAXIMUM", g.vmath("DOT_PRODUCT", wo, u), -1.0), 1.0))
+    # θo = asin(wo.u) (Cycles' arcsine clamps its argument), x = 2|θo|/π, φo = atan2(wo.v, wo.N)
+    x = g.math("MULTIPLY", g.math("ABSOLUTE", g.math("ARCSINE", g.vmath("DOT_PRODUCT", wo, u))), 2.0 / _PI)
     phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
-    x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
-    table = "cdf" in lobe_data
     S = lobe_data["cdf"].shape[0] if table else lobe_data["m"]["weights"].shape[0]
-    xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
-    s0 = g.math("FLOOR", xs)
-    s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
+    # stochastic linear interpolation between the two nearest slices: s = floor(xs + h) is s0 + 1 with
+    # probability xs - s0 (xs = (φo + π/2) S / π - 1/2)
+    s = g.math("FLOOR", g.math("ADD", g.math("MULTIPLY_ADD", phi_o, S / _PI, S / 2 - 0.5), h_slice))
     s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
-    row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
+    row = g.math("MULTIPLY_ADD", s, 1.0 / S, 0.5 / S)
 
     if table:
-        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, noise((39.346, 11.135, 83.155)), tint,
-                              cost_off)
+        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h_lobe, h_frac, tint, cost_off)
     else:
         scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
     if layers is None:
@@ -196,6 +201,20 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
     return mixs.outputs[0]
+
+
+def layer_coordinates(g, uv, theta: float, length: float, width: float, xi) -> bpy.types.NodeSocket:
+    """Eq. 7 in one Mapping node: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
+    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]].  Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so
+    r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and L = -R_z(Θ) S ξ."""
+    c, s_ = math.cos(theta), math.sin(theta)
+    sx, sy = float(length) * float(xi[0]), float(width) * float(xi[1])
+    m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
+    g._set(m.inputs["Vector"], uv)
+    m.inputs["Location"].default_value = (-(c * sx - s_ * sy), -(s_ * sx + c * sy), 0.0)
+    m.inputs["Rotation"].default_value = (0.0, 0.0, float(theta))
+    m.inputs["Scale"].default_value = (float(length), float(width), 1.0)
+    return m.outputs["Vector"]
 
 
 def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
@@ -240,9 +259,18 @@ def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
 
 
 def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
-    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom)."""
+    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom).
+
+    Named ``<img_name> <content hash>`` and shared: materials with the same tables use one image (one packed
+    copy in the .blend), and rebuilding a material never rewrites an image another material uses."""
+    import hashlib
+
+    data = np.ascontiguousarray(arr, np.float32)
     rows, cols = arr.shape[:2]
+    img_name = f"{img_name} {hashlib.sha1(data.tobytes() + repr(data.shape).encode()).hexdigest()[:12]}"
     img = bpy.data.images.get(img_name)
+    if img is not None and tuple(img.size) == (cols, rows) and img.packed_file is not None:
+        return img
     if img is not None and tuple(img.size) != (cols, rows):
         bpy.data.images.remove(img)
         img = None
@@ -250,94 +278,98 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
         img = bpy.data.images.new(img_name, width=cols, height=rows, alpha=True, float_buffer=True, is_data=True)
     img.colorspace_settings.is_data = True
     img.alpha_mode = "CHANNEL_PACKED"
-    img.pixels.foreach_set(np.ascontiguousarray(arr, np.float32).reshape(-1))
+    img.pixels.foreach_set(data.reshape(-1))
     img.file_format = "OPEN_EXR"
     img.pack()
     return img
 
 
 def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types.Image]:
-    """Packed images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), rows = φo slices:
-    C [S, M+1] (R = the bin-picking CDF, G = its total P) and B [S, M] (RGB = w^0_b, A = w^m_b; lossless:
-    RGB = 0) plus, in C's B channel of the first M columns, γ of each bin."""
-    cdf = np.asarray(lobe_data["cdf"], np.float64)
-    S, M1 = cdf.shape
-    M = M1 - 1
-    c = np.zeros((S, M1, 4))
-    c[..., 0] = cdf
-    c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
-    c[:, :M, 2] = lobe_data["gamma"]
+    """Packed images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), rows = φo slices,
+    columns = aim bins: A [S, M] = the alias table (R = prob_j, G = alias_j, B = γ_j, A = γ of alias_j) and
+    B [S, M] = the closure colour of bin b per unit of eq. 2: RGB = w^0_b P / p_b, A = w^m_b P / p_b
+    (P / p_b = 1 / probability of the bin), so colour = R_γ A + (1 - R_γ) RGB (lossless: A = P)."""
+    from ..precompute.scratch.lobe_table import alias_table
+
+    total = np.asarray(lobe_data["total"], np.float64)
+    prob, alias = lobe_data.get("alias_prob"), lobe_data.get("alias_idx")
+    if prob is None or alias is None:
+        prob, alias = alias_table(lobe_data["cdf"])
+    prob, alias = np.asarray(prob, np.float64), np.asarray(alias, np.int64)
+    S, M = prob.shape
+    gamma = np.asarray(lobe_data["gamma"], np.float64)
+    a = np.stack([prob, alias, gamma, np.take_along_axis(gamma, alias, 1)], -1)
+    wm = np.asarray(lobe_data["w_m"], np.float64)
+    w0 = lobe_data.get("w_0")
+    p = wm + (0.0 if w0 is None else np.asarray(w0, np.float64).mean(-1))
+    scale = np.where(p > 0, total[:, None] / np.where(p > 0, p, 1.0), 0.0)   # P / p_b
     b = np.zeros((S, M, 4))
-    b[..., 3] = lobe_data["w_m"]
-    if lobe_data.get("w_0") is not None:
-        b[..., :3] = lobe_data["w_0"]
-    return _data_image(f"{name}.C", c), _data_image(f"{name}.B", b)
+    b[..., 3] = wm * scale
+    if w0 is not None:
+        b[..., :3] = np.asarray(w0, np.float64) * scale[..., None]
+    return _data_image("Scratch table A", a), _data_image("Scratch table B", b)
 
 
-def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint, cost_off=0):
+def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, h_frac, tint, cost_off=0):
     """One tabulated-tilt lobe (``precompute.scratch.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
-    binary search of h in the slice's CDF (log2 M image lookups), aim φi inside the picked bin, a
-    narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b (eq. 2)."""
-    img_c, img_b = table_images(name, lobe_data)
+    bin b from the slice's alias table (one lookup, probability p_b / P), aim φi uniform inside the bin
+    (``h_frac``), a narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b
+    (eq. 2; a second lookup)."""
+    img_a, img_b = table_images(name, lobe_data)
     M = lobe_data["cdf"].shape[1] - 1
-    if M & (M - 1):
-        raise ValueError(f"table lobes need a power-of-two table size M; got {M}")
     lossless = lobe_data.get("w_0") is None
 
-    def fetch(img, col, n_cols):
+    def fetch(img, col):
+        # Closest lookup of column col, row s (EXTEND: a column index M from h = 1 reads column M - 1)
         tex = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
-        g._set(tex.inputs["Vector"], g.combine(g.math("DIVIDE", g.math("ADD", col, 0.5), float(n_cols)), row))
+        g._set(tex.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", col, 1.0 / M, 0.5 / M), row))
         return tex
 
-    lo, hi = 0.0, float(M)
-    for _ in range(0 if cost_off & 4 else int(math.log2(M))):  # hi - lo halves every step: M = 2^L
-        mid = g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", lo, hi), 0.5))
-        # cdf[mid] <= h (the R channel: a Color socket into a Math node would be converted to grey)
-        go = g.math("LESS_THAN", g.separate(fetch(img_c, mid, M + 1).outputs["Color"])[0], g.math("ADD", h, 1e-12))
-        lo = g.math("ADD", lo, g.math("MULTIPLY", go, g.math("SUBTRACT", mid, lo)))
-        hi = g.math("ADD", hi, g.math("MULTIPLY", g.math("SUBTRACT", 1.0, go), g.math("SUBTRACT", mid, hi)))
-    if cost_off & 4:  # bench: no CDF search
-        lo = g.math("MINIMUM", g.math("FLOOR", g.math("MULTIPLY", h, float(M))), M - 1.0)
-    c0 = fetch(img_c, lo, M + 1)
-    c1 = fetch(img_c, g.math("ADD", lo, 1.0), M + 1)
-    c0r, P, gamma = g.separate(c0.outputs["Color"])
-    c1r = g.separate(c1.outputs["Color"])[0]
-    fr = g.math("MINIMUM", g.math("MAXIMUM", g.math("DIVIDE", g.math("SUBTRACT", h, c0r),
-                                                    g.math("MAXIMUM", g.math("SUBTRACT", c1r, c0r), 1e-12)), 0.0), 1.0)
-    phi_i = g.math("ADD", g.math("MULTIPLY", g.math("ADD", lo, fr), _PI / M), -_PI / 2)
-    phi_s = g.math("ADD", g.math("MULTIPLY", s, _PI / S), -_PI / 2 + 0.5 * _PI / S)
-    tilt = g.math("MULTIPLY", g.math("ADD", phi_i, phi_s), 0.5)
-    n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
-                                      g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
-    bin_ = fetch(img_b, lo, M)
-    wm = bin_.outputs["Alpha"]
-    if lossless:
-        colour = g.combine(P, P, P)            # W_b P / p_b with W_b = p_b = w^m_b
+    uh = g.math("MULTIPLY", h, float(M))
+    j = g.math("FLOOR", uh)
+    if cost_off & 4:  # bench: no alias lookup (the bin straight from h)
+        lo, gamma = j, 1.0
     else:
-        w0 = bin_.outputs["Color"]
+        ta = fetch(img_a, j)
+        prob, alias, gamma_j = g.separate(ta.outputs["Color"])
+        take = g.math("LESS_THAN", prob, g.math("SUBTRACT", uh, j))     # u - j >= prob_j: the alias bin
+        lo = g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", alias, j), j)
+        gamma = None if lossless else g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", ta.outputs["Alpha"], gamma_j),
+                                             gamma_j)
+    # tilt = (φi + φs) / 2 with φi = (lo + fr) π / M - π/2, φs = (s + 1/2) π / S - π/2; the lobe normal
+    # cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
+    tilt = g.math("MULTIPLY_ADD", g.math("ADD", lo, h_frac), _PI / (2 * M),
+                  g.math("MULTIPLY_ADD", s, _PI / (2 * S), -_PI / 2 + 0.25 * _PI / S))
+    rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE", invert=True)
+    g._set(rot.inputs["Vector"], N)
+    g._set(rot.inputs["Axis"], u)
+    g._set(rot.inputs["Angle"], tilt)
+    n_l = rot.outputs["Vector"]
+    fr = h_frac
+    bin_ = fetch(img_b, lo)
+    if lossless:
+        colour = bin_.outputs["Alpha"]         # W_b P / p_b with W_b = p_b = w^m_b: P
+    else:
         r = g.math("POWER", x, gamma)
-        W = g.vmath("ADD", g.vmath("SCALE", w0, scale=g.math("SUBTRACT", 1.0, r)),
-                    g.combine(*(g.math("MULTIPLY", r, wm),) * 3))
-        w0s = g.separate(w0)
-        p = g.math("ADD", wm, g.math("MULTIPLY", g.math("ADD", g.math("ADD", w0s[0], w0s[1]), w0s[2]), 1.0 / 3.0))
-        colour = g.vmath("SCALE", W, scale=g.math("DIVIDE", P, g.math("MAXIMUM", p, 1e-30)))
+        colour = g.node("ShaderNodeMix", data_type="RGBA", blend_type="MIX")   # (1 - r) w0' + r wm'
+        g._set(colour.inputs["Factor"], r)
+        g._set(colour.inputs[6], bin_.outputs["Color"])
+        g._set(colour.inputs[7], bin_.outputs["Alpha"])
+        colour = colour.outputs[2]
     if tuple(tint) != (1.0, 1.0, 1.0):
         colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
     ax = float(lobe_data["alpha_x"])
     ay = max(float(lobe_data["alpha_y"]), ax)
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
-    g._set(glossy.inputs["Color"], colour)
     rough, aniso = glossy_node_params(ax, min(ay, 1.0))
-    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and fr kept alive)
-        for link in list(glossy.inputs["Color"].links):
-            g.tree.links.remove(link)
-        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", g.math("ADD", lo, fr), 1e-9), 1.0), rough))
-        g._set(glossy.inputs["Anisotropy"], aniso)
-        g._set(glossy.inputs["Tangent"], u)
-        return glossy.outputs[0]
-    g._set(glossy.inputs["Roughness"], rough)
     g._set(glossy.inputs["Anisotropy"], aniso)
-    g._set(glossy.inputs["Normal"], n_l)
     g._set(glossy.inputs["Tangent"], u)
+    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and fr kept alive)
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, fr), 1e-9, 1.0),
+                                                  rough))
+        return glossy.outputs[0]
+    g._set(glossy.inputs["Color"], colour)
+    g._set(glossy.inputs["Roughness"], rough)
+    g._set(glossy.inputs["Normal"], n_l)
     return glossy.outputs[0]

@@ -33,6 +33,21 @@
     float inv_l = 1.0 / max(Length, 1e-9), inv_w = 1.0 / max(Width, 1e-9);
     float alpha[NL];
     float alpha_sum = 0.0;
+    // Far field for every layer at once: a layer's footprint spread (below) is at least
+    // r_uv max(1/l, 1/w) / sqrt(2) (the ellipse's orthogonal semi-axes, both >= r_uv, project onto the
+    // stretched axis with squares summing to >= r_uv^2), so past 0.8 every layer's fade is 1 and
+    // α_k = c̄(d): no per-layer work, and no scratch work at all when c̄(d) is culled.
+#if COST_OFF & 2
+    int far_all = 0;
+#else
+    int far_all = r_uv * max(inv_l, inv_w) >= 0.8 * M_SQRT2;
+#endif
+    if (far_all) {
+        float a = (cbar < ALPHA_CULL) ? 0.0 : cbar;
+        for (int k = 0; k < NL; k++)
+            alpha[k] = a;
+        alpha_sum = NL * a;
+    } else
     for (int k = 0; k < NL; k++) {
         float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
         // y = diag(l, w)^-1 R(Θk) (u, v) + ξk  (eq. 7, rotation first: see scratch_svbrdf.osl)

@@ -119,13 +119,24 @@ class TableLobes:
     total: np.ndarray
     alpha_y: float
     strata: int = 1
+    alias_prob: np.ndarray | None = None    # [S, M] alias table of the bins (lobe_table.alias_table); None: from cdf
+    alias_idx: np.ndarray | None = None
 
     @classmethod
     def from_tables(cls, t: dict, strata: int = 1) -> "TableLobes":
         """From ``precompute.scratch.lobes.table_lobes``."""
+        ap, ai = t.get("alias_prob"), t.get("alias_idx")
         return cls(np.asarray(t["w_m"], float), None if t.get("w_0") is None else np.asarray(t["w_0"], float),
                    np.asarray(t["gamma"], float), np.asarray(t["cdf"], float), np.asarray(t["total"], float),
-                   float(t["alpha_y"]), int(strata))
+                   float(t["alpha_y"]), int(strata), None if ap is None else np.asarray(ap, float),
+                   None if ai is None else np.asarray(ai, int))
+
+    def alias(self) -> tuple[np.ndarray, np.ndarray]:
+        """(prob [S, M], alias [S, M]): the alias table the shader samples bins with."""
+        if self.alias_prob is None or self.alias_idx is None:
+            from ..precompute.scratch.lobe_table import alias_table
+            return alias_table(self.cdf)
+        return self.alias_prob, self.alias_idx
 
     @property
     def n_slices(self) -> int:
@@ -137,7 +148,9 @@ class TableLobes:
 
 
 def _table_arrays(t: TableLobes) -> str:
-    out = const_array("TB_CDF", t.cdf.ravel()) + const_array("TB_TOT", t.total) + const_array("TB_WM", t.w_m.ravel())
+    prob, alias = t.alias()
+    out = (const_array("TB_AP", prob.ravel()) + const_array("TB_AI", alias.ravel(), "int")
+           + const_array("TB_TOT", t.total) + const_array("TB_WM", t.w_m.ravel()))
     if t.w_0 is not None:
         out += const_array("TB_W0", t.w_0.ravel()) + const_array("TB_GAM", t.gamma.ravel())
     return out

@@ -16,9 +16,9 @@
         s = clamp(s, 0, MS - 1);
 #if LOBE_TABLE
 #if LOSSLESS
-        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_WM, TB_WM, TB_WM, 0, s, x, h_lobe, u, v, n);
+        closure color rho = table_lobes(TB_AP, TB_AI, TB_TOT, TB_WM, TB_WM, TB_WM, 0, s, x, h_lobe, u, v, n);
 #else
-        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_WM, TB_W0, TB_GAM, 1, s, x, h_lobe, u, v, n);
+        closure color rho = table_lobes(TB_AP, TB_AI, TB_TOT, TB_WM, TB_W0, TB_GAM, 1, s, x, h_lobe, u, v, n);
 #endif
 #elif LOBE_SUM
 #if LOSSLESS

@@ -4,7 +4,8 @@
 // Declarations inside the shader body (OSL has no file-scope variables).
 
 #if LOBE_TABLE
-    float TB_CDF[6] = {0, 0.5, 1, 0, 0.5, 1};
+    float TB_AP[4] = {1, 1, 1, 1};
+    int TB_AI[4] = {0, 1, 0, 1};
     float TB_TOT[2] = {0.9, 0.9};
     float TB_WM[4] = {0.45, 0.45, 0.45, 0.45};
 #if !LOSSLESS

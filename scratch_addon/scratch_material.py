@@ -9,6 +9,7 @@ its node-group twin (``node_groups.scratch_svm``) for Cycles SVM, GPU and EEVEE 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 
 import bpy
@@ -155,7 +156,10 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
                                        f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600))
     if src is not None:
-        script = osl_compile.script_node_from_source(tree, f"{material.name}.scratch.osl", src)
+        # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
+        # and density) share it
+        script = osl_compile.script_node_from_source(tree, f"scratch_svbrdf.{hashlib.sha1(src.encode()).hexdigest()[:12]}.osl",
+                                                     src)
         script.location = (200, 300)
         uv = tree.nodes.new("ShaderNodeUVMap")
         uv.location = (-200, 400)

@@ -171,7 +171,8 @@ def table_lobes(brdf, slices: int = 64, use_cache: bool = True) -> dict:
     Returns a dict: ``phi_o [S]``, ``alpha_x``, ``alpha_y`` (the table lobes' GGX width), ``w_m [S, M]``
     (ρm closure weight per aim bin, mono), ``w_0 [S, M, 3]`` (ρ0, RGB; None when lossless), ``gamma
     [S, M]`` (γ of eq. 2 per bin), ``cdf [S, M+1]`` and ``total [S]`` (the bin-picking distribution
-    p_b = w^m_b + mean(w^0_b)), ``error_m`` / ``error_0`` [S] (rel. L1 of what the lobes render on
+    p_b = w^m_b + mean(w^0_b)), ``alias_prob [S, M]`` / ``alias_idx [S, M]`` (its alias table,
+    ``lobe_table.alias_table``: what both render paths sample with), ``error_m`` / ``error_0`` [S] (rel. L1 of what the lobes render on
     average vs ρ cos, worst channel).  Cached by a hash of the tables.
     """
     if not isinstance(slices, (int, np.integer)) or not 4 <= slices <= 512:
@@ -181,7 +182,7 @@ def table_lobes(brdf, slices: int = 64, use_cache: bool = True) -> dict:
     version = cache.code_version(sys.modules[__name__], lobe_fit, lobe_table, cycles_ggx)
     flat = cache.cached_arrays("scratch_table_lobes", version, inputs, lambda: _table_lobes(brdf, int(slices)),
                                enabled=use_cache)
-    out = {k: flat[k] for k in ("phi_o", "w_m", "gamma", "cdf", "total", "error_m")}
+    out = {k: flat[k] for k in ("phi_o", "w_m", "gamma", "cdf", "total", "error_m", "alias_prob", "alias_idx")}
     out["alpha_x"] = float(flat["alpha_x"][0])
     out["alpha_y"] = float(flat["alpha_y"][0])
     out["w_0"] = flat.get("w_0")
@@ -209,4 +210,6 @@ def _table_lobes(brdf, slices: int) -> dict:
             w_0 = np.repeat(w_0, 3, -1)
         out.update({"w_0": w_0, "error_0": err_0})
     out["cdf"], out["total"] = lobe_table.proposal(w_m, w_0)
+    out["alias_prob"], out["alias_idx"] = lobe_table.alias_table(out["cdf"])  # what the shaders sample with
+    out["alias_idx"] = out["alias_idx"].astype(np.int32)
     return out

@@ -329,7 +329,7 @@ def test_table_lobes_match_exact_reference(addon, scene, render_dir, profile, fr
                         **({"lobe_shape": "table"} if mode == "lobes" else {}))
         if mode == "lobes":
             src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
-            assert "#define LOBE_TABLE 1" in src and "TB_CDF" in src
+            assert "#define LOBE_TABLE 1" in src and "TB_AP" in src
             _scene(addon, scene, mat, world="studio", samples=128)
         else:
             scene.objects["Torus"].data.materials[0] = mat

@@ -75,9 +75,35 @@ def test_svm_table_lobes_are_two_packed_images_and_one_closure(addon, scene):
                     lobe_shape="table")
     nodes = mat.node_tree.nodes
     images = {n.image for n in nodes if n.bl_idname == "ShaderNodeTexImage"}
-    assert len(images) == 2  # C (CDF, total, gamma) and B (bin weights)
+    assert len(images) == 2  # A (alias table, gamma) and B (bin colours)
     for img in images:
         assert img.packed_file is not None and img.colorspace_settings.is_data and img.is_float
     assert sum(n.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic") for n in nodes) == 1
-    # log2(M) binary-search fetches + 2 CDF + 1 bin fetch (M = 64)
-    assert sum(n.bl_idname == "ShaderNodeTexImage" for n in nodes) == 6 + 3
+    # one alias-table fetch + one bin fetch (the binary search took log2(M) + 3 = 9 at M = 64)
+    assert sum(n.bl_idname == "ShaderNodeTexImage" for n in nodes) == 2
+
+
+def test_svm_alias_image_samples_the_table_distribution(addon, scene):
+    """The packed alias table (A image: prob, alias) picks each bin with the table's probability p_b / P
+    exactly, and the B image holds W_b P / p_b (independent check from the cached lobe tables)."""
+    import importlib
+
+    root = addon.__name__.rpartition(".")[0]
+    lt = importlib.import_module(root + ".precompute.scratch.lobe_table")
+    material = importlib.import_module(root + ".precompute.scratch.material")
+    svm = importlib.import_module(root + ".node_groups.scratch_svm")
+    params = material.validate(profile=_profiles(addon)["quartic"], fresnel="iron", layers=None, backend="svm",
+                               resolution=64, slices=16)
+    data = material.tables(params)["svm_lobes"]
+    img_a, img_b = svm.table_images("alias-check", data)
+    S, M = data["w_m"].shape
+    a = np.array(img_a.pixels[:], np.float64).reshape(S, M, 4)
+    b = np.array(img_b.pixels[:], np.float64).reshape(S, M, 4)
+    pmf = lt.alias_pmf(a[..., 0], np.rint(a[..., 1]).astype(int))
+    p = np.diff(data["cdf"], axis=1)
+    live = data["total"] > 0
+    np.testing.assert_allclose(pmf[live], p[live], atol=2e-6)  # float32 image
+    p_b = data["w_m"] + data["w_0"].mean(-1)
+    ok = p_b > 1e-6 * p_b.max()
+    np.testing.assert_allclose(b[..., 3][ok], (data["w_m"] * data["total"][:, None] / np.where(ok, p_b, 1))[ok],
+                               rtol=1e-5)
