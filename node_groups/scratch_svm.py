@@ -165,18 +165,17 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     v = g.vmath("CROSS_PRODUCT", N, u)
     theta_o = g.math("ARCSINE", g.math("MINIMUM", g.math("MAXIMUM", g.vmath("DOT_PRODUCT", wo, u), -1.0), 1.0))
     phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
-    x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
     table = "cdf" in lobe_data
-    S = lobe_data["cdf"].shape[0] if table else lobe_data["m"]["weights"].shape[0]
-    xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
-    s0 = g.math("FLOOR", xs)
-    s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
-    s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
-    row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
-
     if table:
-        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, noise((39.346, 11.135, 83.155)), tint)
+        scratch = _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, noise((39.346, 11.135, 83.155)), tint)
     else:
+        x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
+        S = lobe_data["m"]["weights"].shape[0]
+        xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
+        s0 = g.math("FLOOR", xs)
+        s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
+        s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
+        row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
         scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
     if layers is None:
         return scratch
@@ -247,69 +246,109 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
     return img
 
 
-def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types.Image]:
-    """Packed images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), rows = φo slices:
-    C [S, M+1] (R = the bin-picking CDF, G = its total P) and B [S, M] (RGB = w^0_b, A = w^m_b; lossless:
-    RGB = 0) plus, in C's B channel of the first M columns, γ of each bin."""
+def table_images(name: str, lobe_data: dict) -> dict:
+    """Packed Non-Color float images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``):
+
+    - ``N`` [1, G]: per uniform φo cell, R = its node interval k, G = φ_k, B = φ_k+1 (radians);
+    - ``C`` [S, M+1] (rows = φo nodes): R = the bin-picking CDF, G = its total P, B = the aim code of the bin
+      (exit centroid + 2 for even bounces; first M columns), A = the node's φ;
+    - lossy only: ``Y`` [S, K M / y_group] RGB = the θo coefficients (column g K + k for bin group g,
+      function k) and ``B`` [K, NT] RGB = the θo basis (read with Linear interpolation along v).
+    """
     cdf = np.asarray(lobe_data["cdf"], np.float64)
     S, M1 = cdf.shape
     M = M1 - 1
+    phi = np.asarray(lobe_data["phi"], np.float64)
+    cell = np.asarray(lobe_data["cell"], np.int64)
+    n = np.zeros((1, cell.size, 4))
+    n[0, :, 0], n[0, :, 1], n[0, :, 2] = cell, phi[cell], phi[cell + 1]
     c = np.zeros((S, M1, 4))
     c[..., 0] = cdf
     c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
-    c[:, :M, 2] = lobe_data["gamma"]
-    b = np.zeros((S, M, 4))
-    b[..., 3] = lobe_data["w_m"]
-    if lobe_data.get("w_0") is not None:
-        b[..., :3] = lobe_data["w_0"]
-    return _data_image(f"{name}.C", c), _data_image(f"{name}.B", b)
+    c[:, :M, 2] = lobe_data["cen"]
+    c[..., 3] = phi[:, None]
+    out = {"N": _data_image(f"{name}.N", n), "C": _data_image(f"{name}.C", c)}
+    if lobe_data.get("basis") is not None:
+        coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
+        y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
+        y[..., :3] = coef.reshape(S, -1, 3)
+        basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
+        b = np.zeros(basis.shape[:2] + (4,))
+        b[..., :3] = basis
+        out.update(Y=_data_image(f"{name}.Y", y), B=_data_image(f"{name}.Btheta", b))
+    return out
 
 
-def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
-    """One tabulated-tilt lobe (``precompute.scratch.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
-    binary search of h in the slice's CDF (log2 M image lookups), aim φi inside the picked bin, a
-    narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b (eq. 2)."""
-    img_c, img_b = table_images(name, lobe_data)
-    M = lobe_data["cdf"].shape[1] - 1
+def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, tint):
+    """One tabulated-tilt lobe, as the OSL ``table_lobes`` with TK = 1 (``precompute.scratch.lobes.table_lobes``):
+    the φo node picked between the two around φo (a cell image gives the interval), a binary search of h in
+    the node's CDF (log2 M image lookups), the aim at the bin's exit centroid moved to the actual view
+    (odd bounces mirror-like, even retro-like), a narrow GGX Glossy tilted halfway between φo and the
+    exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v), v = 1 - sqrt(cos θo))."""
+    imgs = table_images(name, lobe_data)
+    cdf = lobe_data["cdf"]
+    S, M = cdf.shape[0], cdf.shape[1] - 1
     if M & (M - 1):
         raise ValueError(f"table lobes need a power-of-two table size M; got {M}")
-    lossless = lobe_data.get("w_0") is None
+    G = int(np.asarray(lobe_data["cell"]).size)
+    lossless = lobe_data.get("basis") is None
 
-    def fetch(img, col, n_cols):
-        tex = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+    def fetch(img, col, n_cols, row, interpolation="Closest"):
+        tex = g.node("ShaderNodeTexImage", image=img, interpolation=interpolation, extension="EXTEND")
         g._set(tex.inputs["Vector"], g.combine(g.math("DIVIDE", g.math("ADD", col, 0.5), float(n_cols)), row))
         return tex
 
+    # node interval of phi_o, then one of its two nodes with the linear weight
+    cell = g.math("MINIMUM", g.math("MAXIMUM", g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), G / _PI)),
+                                     0.0), G - 1.0)
+    k, pa, pb = g.separate(fetch(imgs["N"], cell, G, 0.5).outputs["Color"])
+    up = g.math("LESS_THAN", g.math("MULTIPLY", h_slice, g.math("SUBTRACT", pb, pa)), g.math("SUBTRACT", phi_o, pa))
+    s = g.math("ADD", k, up)
+    row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
     lo, hi = 0.0, float(M)
     for _ in range(int(math.log2(M))):  # hi - lo halves every step: M = 2^L
         mid = g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", lo, hi), 0.5))
         # cdf[mid] <= h (the R channel: a Color socket into a Math node would be converted to grey)
-        go = g.math("LESS_THAN", g.separate(fetch(img_c, mid, M + 1).outputs["Color"])[0], g.math("ADD", h, 1e-12))
+        go = g.math("LESS_THAN", g.separate(fetch(imgs["C"], mid, M + 1, row).outputs["Color"])[0], g.math("ADD", h, 1e-12))
         lo = g.math("ADD", lo, g.math("MULTIPLY", go, g.math("SUBTRACT", mid, lo)))
         hi = g.math("ADD", hi, g.math("MULTIPLY", g.math("SUBTRACT", 1.0, go), g.math("SUBTRACT", mid, hi)))
-    c0 = fetch(img_c, lo, M + 1)
-    c1 = fetch(img_c, g.math("ADD", lo, 1.0), M + 1)
-    c0r, P, gamma = g.separate(c0.outputs["Color"])
+    c0 = fetch(imgs["C"], lo, M + 1, row)
+    c1 = fetch(imgs["C"], g.math("ADD", lo, 1.0), M + 1, row)
+    c0r, P, code = g.separate(c0.outputs["Color"])
+    phi_s = c0.outputs["Alpha"]
     c1r = g.separate(c1.outputs["Color"])[0]
     fr = g.math("MINIMUM", g.math("MAXIMUM", g.math("DIVIDE", g.math("SUBTRACT", h, c0r),
                                                     g.math("MAXIMUM", g.math("SUBTRACT", c1r, c0r), 1e-12)), 0.0), 1.0)
-    phi_i = g.math("ADD", g.math("MULTIPLY", g.math("ADD", lo, fr), _PI / M), -_PI / 2)
-    phi_s = g.math("ADD", g.math("MULTIPLY", s, _PI / S), -_PI / 2 + 0.5 * _PI / S)
-    tilt = g.math("MULTIPLY", g.math("ADD", phi_i, phi_s), 0.5)
+    even = g.math("GREATER_THAN", code, 1.5)
+    ce = g.math("SUBTRACT", code, g.math("MULTIPLY", even, 2.0))
+    hw = g.math("MINIMUM", ce, g.math("SUBTRACT", 1.0, ce))
+    aim = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("ADD", lo, ce),
+                                                  g.math("MULTIPLY", g.math("SUBTRACT", g.math("MULTIPLY", fr, 2.0), 1.0), hw)),
+                               _PI / M), -_PI / 2)
+    # exit: aim + (phi_s - phi_o) for odd bounces, aim - (phi_s - phi_o) for even ones
+    d = g.math("MULTIPLY", g.math("SUBTRACT", phi_s, phi_o), g.math("SUBTRACT", 1.0, g.math("MULTIPLY", even, 2.0)))
+    tilt = g.math("MULTIPLY", g.math("ADD", g.math("ADD", aim, d), phi_o), 0.5)
     n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
                                       g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
-    bin_ = fetch(img_b, lo, M)
-    wm = bin_.outputs["Alpha"]
     if lossless:
-        colour = g.combine(P, P, P)            # W_b P / p_b with W_b = p_b = w^m_b
+        colour = g.combine(P, P, P)
     else:
-        w0 = bin_.outputs["Color"]
-        r = g.math("POWER", x, gamma)
-        W = g.vmath("ADD", g.vmath("SCALE", w0, scale=g.math("SUBTRACT", 1.0, r)),
-                    g.combine(*(g.math("MULTIPLY", r, wm),) * 3))
-        w0s = g.separate(w0)
-        p = g.math("ADD", wm, g.math("MULTIPLY", g.math("ADD", g.math("ADD", w0s[0], w0s[1]), w0s[2]), 1.0 / 3.0))
-        colour = g.vmath("SCALE", W, scale=g.math("DIVIDE", P, g.math("MAXIMUM", p, 1e-30)))
+        K, NT = lobe_data["basis"].shape[:2]
+        yg = int(lobe_data.get("y_group", 1))
+        n_cols = lobe_data["coef"].shape[1] * K
+        cu = g.vmath("DOT_PRODUCT", wo, u)
+        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", 1.0, g.math("MULTIPLY", cu, cu)), 0.0))
+        vt = g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t))
+        bcol = g.math("MULTIPLY", vt, NT - 1.0)   # linear interpolation between the NT basis samples
+        grp = g.math("MULTIPLY", g.math("FLOOR", g.math("DIVIDE", g.math("ADD", lo, 0.5), float(yg))), float(K))
+        Y = None
+        for j in range(K):
+            coef = fetch(imgs["Y"], g.math("ADD", grp, float(j)), n_cols, row).outputs["Color"]
+            basis = fetch(imgs["B"], bcol, NT, (j + 0.5) / K, "Linear").outputs["Color"]
+            term = g.vmath("MULTIPLY", coef, basis)
+            Y = term if Y is None else g.vmath("ADD", Y, term)
+        Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
+        colour = g.vmath("SCALE", Y, scale=P)
     if tuple(tint) != (1.0, 1.0, 1.0):
         colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
