@@ -252,5 +252,184 @@ def moments(values: dict) -> dict:
     return out
 
 
+
+# ------------------------------------------------------------------------------------------------- cases
+def measured_like(name: str = "bulges"):
+    """A measured-like asymmetric profile with bulges on both rims (Mérillou-style, §5.3): 48 samples."""
+    from scratch_materials.precompute.scratch import profiles
+
+    x = np.linspace(0.0, 1.0, 48)
+    h = (0.07 * np.exp(-((x - 0.07) / 0.05) ** 2) + 0.04 * np.exp(-((x - 0.94) / 0.04) ** 2)
+         - 0.32 * np.exp(-((x - 0.42) / 0.2) ** 2) - 0.08 * np.exp(-((x - 0.7) / 0.08) ** 2))
+    return profiles.tabulated(x, h, name=name)
+
+
+def cases(names=None) -> list[Case]:
+    """The bench's cases: V-groove 30 deg, quartic 0.5, round 0.5, measured-like with bulges; lossless and gold."""
+    from scratch_materials.precompute.scratch import fresnel, profiles
+
+    gold = fresnel.conductor_preset("gold")
+    profs = {"v30": profiles.v_groove(30.0), "q05": profiles.quartic(0.5, segments=64),
+             "round": profiles.circular(0.5, segments=64), "bulges": measured_like()}
+    out = []
+    for key, prof in profs.items():
+        out.append(Case(key, prof))
+        out.append(Case(key + "_gold", prof, gold))
+    if names:
+        want = set(names)
+        out = [c for c in out if c.name in want]
+        if len(out) != len(want):
+            raise ValueError(f"cases: unknown {sorted(want - {c.name for c in out})}; choose from "
+                             + ", ".join(c.name for c in cases()))
+    return out
+
+
+class TruthScene:
+    """One Blender scene per case: the explicit grooves and the material plane (toggled), an orthographic
+    camera moved per view, direction-coded worlds and a studio world with a small lamp."""
+
+    def __init__(self, addon, case: Case, res: int = RES, samples: int = 16, grooves_per_pixel: int = GROOVES_PER_PIXEL):
+        import bpy
+        from scratch_materials.scratch_addon import scratch_material as sm
+        from scratch_materials.precompute.scratch import material as pm
+
+        self.addon, self.case, self.res, self.samples = addon, case, int(res), int(samples)
+        self.period = ORTHO / (res * grooves_per_pixel)
+        self.scene = addon.render.reset_scene()
+        configure(addon, self.scene, samples, res, 0, False)
+        params = pm.validate(profile=case.profile, fresnel=case.fresnel, layers=case.layers, base="mirror",
+                             **case.material_kw)
+        self.material = sm.build(addon.materials.new_material(f"Scratch {case.name}"), params)
+        self.plane = addon.render.add_plane(self.scene, size=40.0, material=self.material, name="Material plane")
+        self.truth_mat = mirror_material(addon, case.fresnel)
+        self.grooves = None
+        self.light = None
+        self.worlds = {}
+        for kind in WORLDS:
+            set_world(addon, self.scene, kind)
+            self.worlds[kind] = self.scene.world
+            self.scene.world.name = f"Truth {kind}"
+        addon.render.studio_world(self.scene, 1.0)
+        self.worlds["studio"] = self.scene.world
+        self.tmp = tempfile.mkdtemp(prefix="scratch_truth_")
+        self.omega = None
+
+    def set_view(self, theta_deg: float, azimuth_deg: float):
+        import bpy
+
+        omega = view_vector(theta_deg, azimuth_deg)
+        self.omega = omega
+        scale = snapped_scale(omega, self.period)
+        hx, hy = footprint(omega, scale)
+        n = int(math.ceil(2.0 * (hy + 4 * self.period) / self.period))
+        mesh = __import__("scratch_materials.precompute.scratch.explicit", fromlist=["x"]).groove_field(
+            self.case.profile, n, self.period, x_range=(-hx - 0.5, hx + 0.5))
+        if self.grooves is not None:
+            old = self.grooves.data
+            bpy.data.objects.remove(self.grooves)
+            bpy.data.meshes.remove(old)
+        self.grooves = add_mesh(self.scene, mesh, self.truth_mat)
+        set_camera(self.scene, omega, scale)
+        if self.light is not None:
+            data = self.light.data
+            bpy.data.objects.remove(self.light)
+            bpy.data.lights.remove(data)
+        self.light = lamp(self.addon, self.scene, omega)
+        return mesh
+
+    def render(self, what: str, world: str, seed: int = 0) -> np.ndarray:
+        """Image [res, res, 3] of ``what`` ("truth", "osl", "svm") under ``world``."""
+        self.grooves.hide_render = what != "truth"
+        self.plane.hide_render = what == "truth"
+        self.light.hide_render = world != "studio"
+        self.scene.world = self.worlds[world]
+        self.scene.cycles.shading_system = what == "osl"
+        self.scene.cycles.seed = int(seed)
+        img, _ = self.addon.render.render_array(self.scene, self.tmp, f"{what}_{world}")
+        return img
+
+
+def quadrant_noise(img: np.ndarray) -> np.ndarray:
+    """Std error of the image mean per channel from its 4 quadrants (std of quadrant means / 2)."""
+    h, w = img.shape[0] // 2, img.shape[1] // 2
+    q = np.stack([img[:h, :w], img[:h, w:], img[h:, :w], img[h:, w:]]).reshape(4, -1, 3).mean(1)
+    return q.std(0, ddof=1) / 2.0
+
+
+def measure_view(ts: TruthScene, view, paths=("truth", "osl", "svm"), worlds=WORLDS + ("studio",), seed: int = 0):
+    """Moments of every path at one view: {path: {"A", "m1", "m2", "studio", "noise": {...}, "img": {...}}}."""
+    ts.set_view(*view)
+    out = {}
+    for p in paths:
+        vals, noise, imgs = {}, {}, {}
+        for w in worlds:
+            img = ts.render(p, w, seed)
+            vals[w], noise[w], imgs[w] = image_means(img), quadrant_noise(img), img
+        m = moments(vals)
+        m["studio"] = vals.get("studio")
+        m["noise"] = noise
+        m["img"] = imgs
+        out[p] = m
+    return out
+
+
+def errors(meas: dict, path: str) -> dict:
+    """Errors of ``path`` against the truth: A relative (max over RGB), |Δm1|, |Δm2| (max over components,
+    direction-cosine units), studio relative (max over RGB), and the noise (1 sigma) of each."""
+    t, m = meas["truth"], meas[path]
+    A_t = np.maximum(t["A"], 1e-6)
+    e = {"A": float(np.max(np.abs(m["A"] - t["A"]) / A_t))}
+    for k in ("m1", "m2"):
+        if k in t:
+            e[k] = float(np.max(np.abs(m[k] - t[k])))
+    if t.get("studio") is not None:
+        e["studio"] = float(np.max(np.abs(m["studio"] - t["studio"]) / np.maximum(t["studio"], 1e-6)))
+    nz = lambda d, w: float(np.max(np.hypot(d["noise"][w], t["noise"][w]) / A_t))  # noqa: E731
+    e["noise_A"] = nz(m, "white")
+    if "first" in t["noise"]:
+        e["noise_m1"] = 2 * nz(m, "first")
+    if "second" in t["noise"]:
+        e["noise_m2"] = nz(m, "second")
+    if "studio" in t["noise"]:
+        e["noise_studio"] = float(np.max(np.hypot(m["noise"]["studio"], t["noise"]["studio"])
+                                         / np.maximum(t["studio"], 1e-6)))
+    return e
+
+
 def main(argv: list[str]) -> int:
-    raise SystemExit("work in progress")
+    from bench import _util
+
+    ap = argparse.ArgumentParser(prog="python -m bench scratch_truth")
+    ap.add_argument("--cases", default="", help="comma-separated case names (default: all)")
+    ap.add_argument("--views", default="", help="comma-separated view names (default: all)")
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--samples", type=int, default=16)
+    ap.add_argument("--paths", default="osl,svm")
+    ap.add_argument("--out", default="scratch_truth.md")
+    ap.add_argument("--label", default="")
+    a = ap.parse_args(argv)
+    addon = _util.blender(register=True)
+    views = [v for v in VIEWS if not a.views or v in a.views.split(",")]
+    paths = tuple(a.paths.split(","))
+    rows = []
+    t0 = time.perf_counter()
+    for case in cases([c for c in a.cases.split(",") if c] or None):
+        ts = TruthScene(addon, case, res=a.res, samples=a.samples)
+        for vname in views:
+            meas = measure_view(ts, VIEWS[vname], ("truth",) + paths)
+            for p in paths:
+                e = errors(meas, p)
+                rows.append([case.name, vname, p, 100 * e["A"], 100 * e["m1"], 100 * e["m2"], 100 * e["studio"],
+                             100 * max(e["noise_A"], e["noise_m1"], e["noise_m2"]), 100 * e["noise_studio"]])
+                print(" | ".join(str(r) if not isinstance(r, float) else f"{r:.2f}" for r in rows[-1]), flush=True)
+    head = ["case", "view (theta/azimuth from scratch)", "path", "A %", "m1 x100", "m2 x100", "studio %",
+            "noise (1 sigma) x100", "studio noise %"]
+    text = (f"# Scratch material vs explicit grooves (Cycles){' - ' + a.label if a.label else ''}\n\n"
+            f"{a.res}x{a.res} px orthographic, {GROOVES_PER_PIXEL} grooves per pixel, {a.samples} spp; "
+            f"A: albedo rel. error (max RGB); m1, m2: |error| of E[d], E[d^2] of the exit direction (max component, "
+            f"x100); studio: image mean rel. error under the studio world + a small area light.  Views: "
+            + ", ".join(f"{k} = {v[0]:g}/{v[1]:g}" for k, v in VIEWS.items() if k in views)
+            + f".  {time.perf_counter() - t0:.0f} s.\n\n" + _util.format_table(head, rows) + "\n")
+    _util.out_path(a.out).write_text(text)
+    print(text)
+    return 0
