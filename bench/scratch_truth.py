@@ -254,23 +254,27 @@ def moments(values: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------- cases
-def measured_like(name: str = "bulges"):
-    """A measured-like asymmetric profile with bulges on both rims (Mérillou-style, §5.3): 48 samples."""
-    from scratch_materials.precompute.scratch import profiles
+def science(addon, name: str):
+    """``precompute.scratch.<name>`` of the package holding the glue ``addon`` (one import identity)."""
+    import importlib
 
+    return importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.scratch." + name)
+
+
+def measured_like(profiles, name: str = "bulges"):
+    """A measured-like asymmetric profile with bulges on both rims (Mérillou-style, §5.3): 48 samples."""
     x = np.linspace(0.0, 1.0, 48)
     h = (0.07 * np.exp(-((x - 0.07) / 0.05) ** 2) + 0.04 * np.exp(-((x - 0.94) / 0.04) ** 2)
          - 0.32 * np.exp(-((x - 0.42) / 0.2) ** 2) - 0.08 * np.exp(-((x - 0.7) / 0.08) ** 2))
     return profiles.tabulated(x, h, name=name)
 
 
-def cases(names=None) -> list[Case]:
+def cases(addon, names=None) -> list[Case]:
     """The bench's cases: V-groove 30 deg, quartic 0.5, round 0.5, measured-like with bulges; lossless and gold."""
-    from scratch_materials.precompute.scratch import fresnel, profiles
-
+    profiles, fresnel = science(addon, "profiles"), science(addon, "fresnel")
     gold = fresnel.conductor_preset("gold")
     profs = {"v30": profiles.v_groove(30.0), "q05": profiles.quartic(0.5, segments=64),
-             "round": profiles.circular(0.5, segments=64), "bulges": measured_like()}
+             "round": profiles.circular(0.5, segments=64), "bulges": measured_like(profiles)}
     out = []
     for key, prof in profs.items():
         out.append(Case(key, prof))
@@ -280,7 +284,7 @@ def cases(names=None) -> list[Case]:
         out = [c for c in out if c.name in want]
         if len(out) != len(want):
             raise ValueError(f"cases: unknown {sorted(want - {c.name for c in out})}; choose from "
-                             + ", ".join(c.name for c in cases()))
+                             + ", ".join(c.name for c in cases(addon)))
     return out
 
 
@@ -289,15 +293,12 @@ class TruthScene:
     camera moved per view, direction-coded worlds and a studio world with a small lamp."""
 
     def __init__(self, addon, case: Case, res: int = RES, samples: int = 16, grooves_per_pixel: int = GROOVES_PER_PIXEL):
-        import bpy
-        from scratch_materials.scratch_addon import scratch_material as sm
-        from scratch_materials.precompute.scratch import material as pm
-
+        sm = addon.scratch_material
         self.addon, self.case, self.res, self.samples = addon, case, int(res), int(samples)
         self.period = ORTHO / (res * grooves_per_pixel)
         self.scene = addon.render.reset_scene()
         configure(addon, self.scene, samples, res, 0, False)
-        params = pm.validate(profile=case.profile, fresnel=case.fresnel, layers=case.layers, base="mirror",
+        params = sm.validate(profile=case.profile, fresnel=case.fresnel, layers=case.layers, base="mirror",
                              **case.material_kw)
         self.material = sm.build(addon.materials.new_material(f"Scratch {case.name}"), params)
         self.plane = addon.render.add_plane(self.scene, size=40.0, material=self.material, name="Material plane")
@@ -322,7 +323,7 @@ class TruthScene:
         scale = snapped_scale(omega, self.period)
         hx, hy = footprint(omega, scale)
         n = int(math.ceil(2.0 * (hy + 4 * self.period) / self.period))
-        mesh = __import__("scratch_materials.precompute.scratch.explicit", fromlist=["x"]).groove_field(
+        mesh = science(self.addon, "explicit").groove_field(
             self.case.profile, n, self.period, x_range=(-hx - 0.5, hx + 0.5))
         if self.grooves is not None:
             old = self.grooves.data
@@ -413,7 +414,7 @@ def main(argv: list[str]) -> int:
     paths = tuple(a.paths.split(","))
     rows = []
     t0 = time.perf_counter()
-    for case in cases([c for c in a.cases.split(",") if c] or None):
+    for case in cases(addon, [c for c in a.cases.split(",") if c] or None):
         ts = TruthScene(addon, case, res=a.res, samples=a.samples)
         for vname in views:
             meas = measure_view(ts, VIEWS[vname], ("truth",) + paths)

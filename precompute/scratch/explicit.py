@@ -86,8 +86,8 @@ def groove_field(profile: Profile, n: int, period: float, x_range=(-1.0, 1.0), y
     verts[:L, 1:] = line
     verts[L:, 1:] = line
     i = np.arange(L - 1)
-    # (x0, y_i) -> (x0, y_i+1) -> (x1, y_i+1) -> (x1, y_i): counter-clockwise from above (+z normal for flat parts)
-    quads = np.stack([i, i + 1, L + i + 1, L + i], 1)
+    # (x0, y_i) -> (x1, y_i) -> (x1, y_i+1) -> (x0, y_i+1): counter-clockwise from above (normals up, +z)
+    quads = np.stack([i, L + i, L + i + 1, i + 1], 1)
     meta = {"profile": profile.name, "grooves": int(n), "period": float(period), "x_range": (x0, x1),
             "y_range": (float(y0), float(y0 + n * period))}
     return Mesh(verts, quads.astype(np.int64), np.zeros((0, 3), np.int64), meta)
@@ -211,8 +211,8 @@ def layer_field(profile: Profile, layers: LayerParams, period: float, uv_window,
         base0 = nv + np.arange(R) * (P + 1)
         base1 = base0 + R * (P + 1)
         i = np.arange(P)[None, :]
-        quads.append(np.stack([base0[:, None] + i, base0[:, None] + i + 1, base1[:, None] + i + 1,
-                               base1[:, None] + i], -1).reshape(-1, 4))
+        quads.append(np.stack([base0[:, None] + i, base1[:, None] + i, base1[:, None] + i + 1,
+                               base0[:, None] + i + 1], -1).reshape(-1, 4))      # counter-clockwise from above
         tris.append(_cap_fans(base0, P))
         tris.append(_cap_fans(base1, P))
         nv += 2 * R * (P + 1)
