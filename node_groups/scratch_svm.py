@@ -178,19 +178,19 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         g._set(rot.inputs["Angle"], theta_sel)
         u = rot.outputs["Vector"]
     v = g.vmath("CROSS_PRODUCT", N, u)
-    # θo = asin(wo.u) (Cycles' arcsine clamps its argument), x = 2|θo|/π, φo = atan2(wo.v, wo.N)
-    x = g.math("MULTIPLY", g.math("ABSOLUTE", g.math("ARCSINE", g.vmath("DOT_PRODUCT", wo, u))), 2.0 / _PI)
+    # φo = atan2(wo.v, wo.N)
     phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
-    S = lobe_data["cdf"].shape[0] if table else lobe_data["m"]["weights"].shape[0]
-    # stochastic linear interpolation between the two nearest slices: s = floor(xs + h) is s0 + 1 with
-    # probability xs - s0 (xs = (φo + π/2) S / π - 1/2)
-    s = g.math("FLOOR", g.math("ADD", g.math("MULTIPLY_ADD", phi_o, S / _PI, S / 2 - 0.5), h_slice))
-    s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
-    row = g.math("MULTIPLY_ADD", s, 1.0 / S, 0.5 / S)
-
     if table:
-        scratch = _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h_lobe, h_frac, tint, cost_off)
+        scratch = _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h_lobe, h_frac, tint, cost_off)
     else:
+        # θo = asin(wo.u) (Cycles' arcsine clamps its argument), x = 2|θo|/π
+        x = g.math("MULTIPLY", g.math("ABSOLUTE", g.math("ARCSINE", g.vmath("DOT_PRODUCT", wo, u))), 2.0 / _PI)
+        S = lobe_data["m"]["weights"].shape[0]
+        # stochastic linear interpolation between the two nearest slices: s = floor(xs + h) is s0 + 1 with
+        # probability xs - s0 (xs = (φo + π/2) S / π - 1/2)
+        s = g.math("FLOOR", g.math("ADD", g.math("MULTIPLY_ADD", phi_o, S / _PI, S / 2 - 0.5), h_slice))
+        s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
+        row = g.math("MULTIPLY_ADD", s, 1.0 / S, 0.5 / S)
         scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
     if layers is None:
         return scratch
@@ -284,78 +284,134 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
     return img
 
 
-def table_images(name: str, lobe_data: dict) -> tuple[bpy.types.Image, bpy.types.Image]:
-    """Packed images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), rows = φo slices,
-    columns = aim bins: A [S, M] = the alias table (R = prob_j, G = alias_j, B = γ_j, A = γ of alias_j) and
-    B [S, M] = the closure colour of bin b per unit of eq. 2: RGB = w^0_b P / p_b, A = w^m_b P / p_b
-    (P / p_b = 1 / probability of the bin), so colour = R_γ A + (1 - R_γ) RGB (lossless: A = P)."""
+def table_images(name: str, lobe_data: dict) -> dict:
+    """Packed Non-Color float images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``):
+
+    - ``N`` [1, G]: per uniform φo cell, R = its node interval k, G = φ_k, B = φ_k+1 (radians);
+    - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j, G = alias_j;
+    - ``C`` [S, M] (rows = φo nodes): G = the node's total P, B = the aim code of the bin (exit centroid + 2 for
+      even bounces), A = the node's φ;
+    - lossy only: ``Y`` [S, K M / y_group] RGB = the θo coefficients (column g K + k for bin group g,
+      function k) and ``B`` [K, NT] RGB = the θo basis (read with Linear interpolation along v).
+    Images are shared by content (``_data_image``).
+    """
     from ..precompute.scratch.lobe_table import alias_table
 
-    total = np.asarray(lobe_data["total"], np.float64)
+    cdf = np.asarray(lobe_data["cdf"], np.float64)
+    S, M1 = cdf.shape
+    M = M1 - 1
+    phi = np.asarray(lobe_data["phi"], np.float64)
+    cell = np.asarray(lobe_data["cell"], np.int64)
+    n = np.zeros((1, cell.size, 4))
+    n[0, :, 0], n[0, :, 1], n[0, :, 2] = cell, phi[cell], phi[cell + 1]
     prob, alias = lobe_data.get("alias_prob"), lobe_data.get("alias_idx")
     if prob is None or alias is None:
-        prob, alias = alias_table(lobe_data["cdf"])
-    prob, alias = np.asarray(prob, np.float64), np.asarray(alias, np.int64)
-    S, M = prob.shape
-    gamma = np.asarray(lobe_data["gamma"], np.float64)
-    a = np.stack([prob, alias, gamma, np.take_along_axis(gamma, alias, 1)], -1)
-    wm = np.asarray(lobe_data["w_m"], np.float64)
-    w0 = lobe_data.get("w_0")
-    p = wm + (0.0 if w0 is None else np.asarray(w0, np.float64).mean(-1))
-    scale = np.where(p > 0, total[:, None] / np.where(p > 0, p, 1.0), 0.0)   # P / p_b
-    b = np.zeros((S, M, 4))
-    b[..., 3] = wm * scale
-    if w0 is not None:
-        b[..., :3] = np.asarray(w0, np.float64) * scale[..., None]
-    return _data_image("Scratch table A", a), _data_image("Scratch table B", b)
+        prob, alias = alias_table(cdf)
+    a = np.zeros((S, M, 4))
+    a[..., 0], a[..., 1] = prob, alias
+    c = np.zeros((S, M, 4))
+    c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
+    c[..., 2] = lobe_data["cen"]
+    c[..., 3] = phi[:, None]
+    out = {"N": _data_image("Scratch table N", n), "A": _data_image("Scratch table A", a),
+           "C": _data_image("Scratch table C", c)}
+    if lobe_data.get("basis") is not None:
+        coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
+        y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
+        y[..., :3] = coef.reshape(S, -1, 3)
+        basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
+        b = np.zeros(basis.shape[:2] + (4,))
+        b[..., :3] = basis
+        out.update(Y=_data_image("Scratch table Y", y), B=_data_image("Scratch table Btheta", b))
+    return out
 
 
-def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, h_frac, tint, cost_off=0):
-    """One tabulated-tilt lobe (``precompute.scratch.lobe_table``), as the OSL ``table_lobes`` with TK = 1:
-    bin b from the slice's alias table (one lookup, probability p_b / P), aim φi uniform inside the bin
-    (``h_frac``), a narrow GGX Glossy tilted to mirror the slice's φo into φi, colour W_b(θo) P / p_b
-    (eq. 2; a second lookup)."""
-    img_a, img_b = table_images(name, lobe_data)
-    M = lobe_data["cdf"].shape[1] - 1
-    lossless = lobe_data.get("w_0") is None
+def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint, cost_off=0):
+    """One tabulated-tilt lobe, as the OSL ``table_lobes`` with TK = 1 (``precompute.scratch.lobes.table_lobes``):
+    the φo node picked between the two around φo (a cell image gives the interval), the bin from the node's
+    alias table (one lookup, probability p_b / P), the aim at the bin's exit centroid moved to the actual view
+    (odd bounces mirror-like, even retro-like; the spread inside the bin drawn with ``h_frac``), a narrow GGX
+    Glossy tilted halfway between φo and the exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v),
+    v = 1 - sqrt(cos θo)).  ``cost_off`` bits 4 / 8 as in ``build``."""
+    imgs = table_images(name, lobe_data)
+    cdf = lobe_data["cdf"]
+    S, M = cdf.shape[0], cdf.shape[1] - 1
+    G = int(np.asarray(lobe_data["cell"]).size)
+    lossless = lobe_data.get("basis") is None
 
-    def fetch(img, col):
-        # Closest lookup of column col, row s (EXTEND: a column index M from h = 1 reads column M - 1)
-        tex = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
-        g._set(tex.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", col, 1.0 / M, 0.5 / M), row))
+    def fetch(img, col, n_cols, row, interpolation="Closest"):
+        # lookup of column col (an integer, or a continuous coordinate for Linear), row ``row`` in [0, 1]
+        tex = g.node("ShaderNodeTexImage", image=img, interpolation=interpolation, extension="EXTEND")
+        g._set(tex.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", col, 1.0 / n_cols, 0.5 / n_cols), row))
         return tex
 
+    # node interval of phi_o (EXTEND clamps the cell), then one of its two nodes with the linear weight
+    cell = g.math("FLOOR", g.math("MULTIPLY_ADD", phi_o, G / _PI, G / 2))
+    k, pa, pb = g.separate(fetch(imgs["N"], cell, G, 0.5).outputs["Color"])
+    up = g.math("LESS_THAN", g.math("MULTIPLY", h_slice, g.math("SUBTRACT", pb, pa)), g.math("SUBTRACT", phi_o, pa))
+    row = g.math("MULTIPLY_ADD", g.math("ADD", k, up), 1.0 / S, 0.5 / S)
     uh = g.math("MULTIPLY", h, float(M))
     j = g.math("FLOOR", uh)
     if cost_off & 4:  # bench: no alias lookup (the bin straight from h)
-        lo, gamma = j, 1.0
+        lo = j
     else:
-        ta = fetch(img_a, j)
-        prob, alias, gamma_j = g.separate(ta.outputs["Color"])
+        prob, alias, _ = g.separate(fetch(imgs["A"], j, M, row).outputs["Color"])
         take = g.math("LESS_THAN", prob, g.math("SUBTRACT", uh, j))     # u - j >= prob_j: the alias bin
         lo = g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", alias, j), j)
-        gamma = None if lossless else g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", ta.outputs["Alpha"], gamma_j),
-                                             gamma_j)
-    # tilt = (φi + φs) / 2 with φi = (lo + fr) π / M - π/2, φs = (s + 1/2) π / S - π/2; the lobe normal
-    # cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
-    tilt = g.math("MULTIPLY_ADD", g.math("ADD", lo, h_frac), _PI / (2 * M),
-                  g.math("MULTIPLY_ADD", s, _PI / (2 * S), -_PI / 2 + 0.25 * _PI / S))
+    c0 = fetch(imgs["C"], lo, M, row)
+    _, P, code = g.separate(c0.outputs["Color"])
+    phi_s = c0.outputs["Alpha"]
+    fr = h_frac
+    # aim = (lo + ce + (2 fr - 1) hw) π / M - π/2, ce = code (- 2 for even bounces), hw = min(ce, 1 - ce)
+    even = g.math("GREATER_THAN", code, 1.5)
+    ce = g.math("MULTIPLY_ADD", even, -2.0, code)
+    hw = g.math("MINIMUM", ce, g.math("SUBTRACT", 1.0, ce))
+    aim = g.math("MULTIPLY_ADD", g.math("ADD", g.math("ADD", lo, ce), g.math("MULTIPLY", g.math("MULTIPLY_ADD", fr, 2.0, -1.0), hw)),
+                 _PI / M, -_PI / 2)
+    # exit: aim + (phi_s - phi_o) for odd bounces, aim - (phi_s - phi_o) for even ones; tilt = (exit + φo) / 2
+    d = g.math("MULTIPLY", g.math("SUBTRACT", phi_s, phi_o), g.math("MULTIPLY_ADD", even, -2.0, 1.0))
+    tilt = g.math("MULTIPLY", g.math("ADD", g.math("ADD", aim, d), phi_o), 0.5)
+    # the lobe normal cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
     rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE", invert=True)
     g._set(rot.inputs["Vector"], N)
     g._set(rot.inputs["Axis"], u)
     g._set(rot.inputs["Angle"], tilt)
     n_l = rot.outputs["Vector"]
-    fr = h_frac
-    bin_ = fetch(img_b, lo)
     if lossless:
-        colour = bin_.outputs["Alpha"]         # W_b P / p_b with W_b = p_b = w^m_b: P
+        colour = P
     else:
-        r = g.math("POWER", x, gamma)
-        colour = g.node("ShaderNodeMix", data_type="RGBA", blend_type="MIX")   # (1 - r) w0' + r wm'
-        g._set(colour.inputs["Factor"], r)
-        g._set(colour.inputs[6], bin_.outputs["Color"])
-        g._set(colour.inputs[7], bin_.outputs["Alpha"])
-        colour = colour.outputs[2]
+        K, NT = lobe_data["basis"].shape[:2]
+        yg = int(lobe_data.get("y_group", 1))
+        n_cols = lobe_data["coef"].shape[1] * K
+        cu = g.vmath("DOT_PRODUCT", wo, u)
+        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("MULTIPLY_ADD", cu, g.math("MULTIPLY", cu, -1.0), 1.0), 0.0))
+        bcol = g.math("MULTIPLY", g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t)), NT - 1.0)  # linear between samples
+        grp = g.math("MULTIPLY", g.math("FLOOR", g.math("DIVIDE", g.math("ADD", lo, 0.5), float(yg))), float(K))
+        Y = None
+        for jj in range(K):
+            coef = fetch(imgs["Y"], g.math("ADD", grp, float(jj)), n_cols, row).outputs["Color"]
+            basis = fetch(imgs["B"], bcol, NT, (jj + 0.5) / K, "Linear").outputs["Color"]
+            term = g.vmath("MULTIPLY", coef, basis)
+            Y = term if Y is None else g.vmath("ADD", Y, term)
+        Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
+        colour = g.vmath("SCALE", Y, scale=P)
+    if tuple(tint) != (1.0, 1.0, 1.0):
+        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+    # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
+    ax = float(lobe_data["alpha_x"])
+    ay = max(float(lobe_data["alpha_y"]), ax)
+    glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+    rough, aniso = glossy_node_params(ax, min(ay, 1.0))
+    g._set(glossy.inputs["Anisotropy"], aniso)
+    g._set(glossy.inputs["Tangent"], u)
+    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and the node kept alive)
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, phi_s), 1e-9, 1.0),
+                                                  rough))
+        return glossy.outputs[0]
+    g._set(glossy.inputs["Color"], colour)
+    g._set(glossy.inputs["Roughness"], rough)
+    g._set(glossy.inputs["Normal"], n_l)
+    return glossy.outputs[0]
     if tuple(tint) != (1.0, 1.0, 1.0):
         colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x

@@ -28,7 +28,7 @@ import numpy as np
 from ..cycles.ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
-__all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model"]
+__all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model", "box_albedo"]
 
 
 def default_width(M: int) -> float:
@@ -166,6 +166,45 @@ def sample_bins(cdf, s, h):
     c0, c1 = cdf[s, lo], cdf[s, lo + 1]
     frac = np.where(c1 > c0, (h - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.5)
     return lo, np.clip(frac, 0.0, 1.0)
+
+
+def box_albedo(phi_o, M: int, centroid, alpha_y=None, alpha_x: float = 1e-4, band=BAND) -> np.ndarray:
+    """What Cycles renders per unit closure weight of each bin's lobe of the view slices: a [S, M].
+
+    The lobe of bin b of the slice at ``phi_o[s]`` aims uniformly in ``[c - h, c + h]`` of the bin (c =
+    ``centroid[s, b]``, a fraction of the bin; h = min(c, 1 - c)), so its tilt is uniform in a box of
+    half width h pi / (2 M) around (aim + phi_o) / 2; Cycles' G2 and horizon losses make a < 1 near
+    grazing.  Bins |m - b| <= ``band`` are evaluated (``cycles_ggx.cone_collapse_binned_jittered_windows``).
+    Used by ``precompute.scratch.lobes.table_lobes`` (weights = mass / a, Raymond et al. 2016 eq. 5).
+    """
+    from ..cycles.ggx import cone_collapse_binned_jittered_windows as windows
+
+    phi_o = np.atleast_1d(np.asarray(phi_o, float))
+    c = np.asarray(centroid, float)
+    if not (isinstance(M, (int, np.integer)) and M >= 4) or c.shape != (phi_o.size, M):
+        raise ValueError(f"centroid must be [S, M] with S = phi_o.size and M >= 4; got {c.shape}")
+    if not np.all(np.isfinite(phi_o)) or np.any(np.abs(phi_o) >= 0.5 * np.pi):
+        raise ValueError("phi_o must hold angles in (-pi/2, pi/2) radians")
+    ay = default_width(M) if alpha_y is None else float(alpha_y)
+    d = np.pi / M
+    h = np.minimum(c, 1.0 - c)
+    aim = -0.5 * np.pi + (np.arange(M)[None, :] + c) * d
+    tilt = 0.5 * (aim + phi_o[:, None])
+    offs = np.arange(-band, band + 1)
+    idx = np.arange(M)[:, None] + offs[None, :]
+    win = -0.5 * np.pi + d * (idx[..., None] + np.array([0, 1]))
+    edges = np.concatenate([win[:, :, 0], win[:, -1:, 1]], axis=1)                    # [M, W+1]
+    S = phi_o.size
+    out = np.empty((S, M))
+    step = max(1, 200_000 // (M * (2 * band + 1)))
+    for a in range(0, S, step):
+        b = min(S, a + step)
+        n = b - a
+        vals = windows(np.repeat(phi_o[a:b], M), np.tile(edges, (n, 1)), tilt[a:b].ravel(), ay,
+                       (0.5 * d * h[a:b]).ravel(), alpha_x)                              # [n M, W]
+        inside = ((idx >= 0) & (idx < M))[None].repeat(n, 0).reshape(n * M, -1)
+        out[a:b] = (vals * inside).sum(1).reshape(n, M) * d
+    return out
 
 
 def alias_table(cdf):

@@ -89,17 +89,25 @@ def test_binary_search_is_searchsorted(Mb, hs, seed):
 
 def test_lossy_tables_and_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SCRATCH_ADDON_CACHE", str(tmp_path))
-    brdf = scratch_brdf.simulate(profiles.quartic(0.3, segments=512), resolution=M, fresnel=fresnel.conductor_preset("gold"))
-    t = scratch_lobes.table_lobes(brdf, slices=16, use_cache=False)
-    assert t["w_0"].shape == (16, M, 3) and t["w_m"].shape == (16, M) and t["cdf"].shape == (16, M + 1)
-    assert t["error_m"].max() < 0.03 and t["error_0"].max() < 0.03
-    # gold: rho_0 is redder than rho_m at normal view
-    assert t["w_0"][..., 0].sum() > t["w_0"][..., 2].sum()
-    np.testing.assert_allclose(t["cdf"][:, -1], 1.0)
+    prof, gold = profiles.quartic(0.3, segments=512), fresnel.conductor_preset("gold")
+    t = scratch_lobes.table_lobes(prof, gold, resolution=M, slices=16, use_cache=False)
+    S = t["phi"].size
+    assert t["cdf"].shape == (S, M + 1) and t["cen"].shape == (S, M) and t["total"].shape == (S,)
+    K, NT = t["basis"].shape[:2]
+    assert t["coef"].shape == (S, M // t["y_group"], K, 3) and t["basis"].shape == (K, NT, 3)
+    # adaptive nodes: a dyadic refinement of 16 uniform intervals, every uniform cell mapped to its interval
+    assert S >= 17 and np.all(np.diff(t["phi"]) > 0) and t["phi"][0] == -0.5 * np.pi and t["phi"][-1] == 0.5 * np.pi
+    cells = -0.5 * np.pi + (np.arange(t["cell"].size) + 0.5) * np.pi / t["cell"].size
+    assert np.all((t["phi"][t["cell"]] <= cells) & (cells <= t["phi"][t["cell"] + 1]))
+    assert t["error_m"] < 0.01 and t["error_0"] < 0.01
+    np.testing.assert_allclose(t["cdf"][:, -1][t["total"] > 0], 1.0)
     assert np.all(np.diff(t["cdf"], axis=1) >= 0)
-    t2 = scratch_lobes.table_lobes(brdf, slices=16)
-    t3 = scratch_lobes.table_lobes(brdf, slices=16)       # from the cache
-    np.testing.assert_allclose(t2["w_0"], t3["w_0"], rtol=1e-6)
+    t2 = scratch_lobes.table_lobes(prof, gold, resolution=M, slices=16)
+    t3 = scratch_lobes.table_lobes(prof, gold, resolution=M, slices=16)       # from the cache
+    np.testing.assert_allclose(t2["coef"], t3["coef"], rtol=1e-6)
+    np.testing.assert_allclose(t2["cdf"], t["cdf"], rtol=1e-6)  # the cache returns its float32 form from the first call
+    with pytest.raises(ValueError, match="slices"):
+        scratch_lobes.table_lobes(prof, gold, resolution=M, slices=15)
 
 
 @pytest.mark.parametrize("call, needle", [
