@@ -1,6 +1,6 @@
 """Scratch materials at scene scale (issue 15 item 5): what N materials add to a frame's sync and to the .blend.
 
-A grid of N small UV-mapped planes, each with its own scratch material: the 11 scratch presets in turn, every
+A grid of N small UV-mapped planes, each with its own scratch material: the 10 scratch presets (not "demo") in turn, every
 repeat of a preset with another tint (so materials that share tables differ only by per-material values).
 Measured in one process, interleaved with the same grid under one plain Glossy material (baseline):
 
@@ -89,7 +89,7 @@ def main(argv: list[str]) -> int:
                      med[(True, False)] - med[(False, False)], med[(False, True)]))
     report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", ".blend MB added", "OSL sync s added",
                              "SVM sync s added", "baseline t(1 spp) s"], rows,
-           f"Grid of N planes, the 11 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
+           f"Grid of N planes, the 10 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
            f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation); load "
            f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
     return 0
