@@ -59,7 +59,12 @@ VIEWS = {
 }
 WORLDS = ("white", "first", "second")
 
-ORTHO = 1.0          # metres seen across the image (before snapping to whole periods)
+#: metres seen across the image (before snapping to whole periods).  Large on purpose: Cycles traces the
+#: extruded polyline of a curved profile differently at millimetre periods (quartic 0.5 straight down: mean
+#: bounces 1.69 at a 2 mm period vs 1.735 at 17 mm, the 2D tracer and an independent 2D Monte Carlo; gold
+#: albedo 2-4 % high) - an absolute epsilon in the renderer, not the optics; at 16 m / 64 px / 15 grooves per
+#: pixel the period is 17 mm.
+ORTHO = 16.0
 RES = 16             # pixels across
 GROOVES_PER_PIXEL = 15
 
@@ -90,10 +95,18 @@ def projected_period(omega: np.ndarray, period: float) -> float:
     return period / abs(dy)
 
 
-def snapped_scale(omega: np.ndarray, period: float, scale: float = ORTHO) -> float:
-    """The orthographic scale (image width) nearest to ``scale`` holding a whole number of projected periods."""
+def snapped_scale(omega: np.ndarray, period: float, scale: float = ORTHO, res: int | None = None) -> float:
+    """The orthographic scale (image width) nearest to ``scale`` holding a whole number N of projected periods,
+    with N coprime to the pixel count ``res``: the grooves' phase then steps by 1/res of a period from pixel to
+    pixel.  With a whole number of periods per pixel every pixel sees the same sub-pixel pattern, and Cycles'
+    per-pixel sample positions are correlated enough to bias the image mean (quartic 0.5, gold, straight down:
+    blue albedo 0.239 at 15 periods per pixel, 0.226-0.237 at 15.25-15.5, 0.2291 exact)."""
     p = projected_period(omega, period)
-    return max(1, round(scale / p)) * p
+    n = max(1, round(scale / p))
+    if res:
+        while math.gcd(n, int(res)) != 1:
+            n += 1
+    return n * p
 
 
 def footprint(omega: np.ndarray, scale: float) -> tuple[float, float]:
@@ -187,7 +200,7 @@ def set_world(addon, scene, kind: str) -> None:
     tree.links.new(vm.outputs["Vector"], bg.inputs["Color"])
 
 
-def set_camera(scene, omega: np.ndarray, scale: float, target=(0.0, 0.0, 0.0), distance: float = 20.0):
+def set_camera(scene, omega: np.ndarray, scale: float, target=(0.0, 0.0, 0.0), distance: float = 20.0 * ORTHO):
     """Orthographic camera looking along -omega at ``target``, scratch direction vertical in the image."""
     import bpy
     from mathutils import Matrix
@@ -218,12 +231,12 @@ def configure(addon, scene, samples: int, res: int, seed: int, osl: bool, bounce
     scene.render.use_persistent_data = True
 
 
-def lamp(addon, scene, omega_view: np.ndarray, energy: float = 400.0, size: float = 0.5):
+def lamp(addon, scene, omega_view: np.ndarray, energy: float = 400.0 * ORTHO ** 2, size: float = 0.5 * ORTHO):
     """A small area light near the mirror direction of the view (rotated 20 deg about the normal)."""
     a = math.atan2(omega_view[1], omega_view[0]) + math.pi + math.radians(20.0)
     t = max(math.acos(min(max(omega_view[2], -1.0), 1.0)), math.radians(20.0))
     d = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
-    return addon.render.add_light(scene, "AREA", location=tuple(6.0 * d), energy=energy, size=size)
+    return addon.render.add_light(scene, "AREA", location=tuple(6.0 * ORTHO * d), energy=energy, size=size)
 
 
 @dataclass
@@ -301,7 +314,7 @@ class TruthScene:
         params = sm.validate(profile=case.profile, fresnel=case.fresnel, layers=case.layers, base="mirror",
                              **case.material_kw)
         self.material = sm.build(addon.materials.new_material(f"Scratch {case.name}"), params)
-        self.plane = addon.render.add_plane(self.scene, size=40.0, material=self.material, name="Material plane")
+        self.plane = addon.render.add_plane(self.scene, size=40.0 * ORTHO, material=self.material, name="Material plane")
         self.truth_mat = mirror_material(addon, case.fresnel)
         self.grooves = None
         self.light = None
@@ -320,11 +333,11 @@ class TruthScene:
 
         omega = view_vector(theta_deg, azimuth_deg)
         self.omega = omega
-        scale = snapped_scale(omega, self.period)
+        scale = snapped_scale(omega, self.period, res=self.res)
         hx, hy = footprint(omega, scale)
         n = int(math.ceil(2.0 * (hy + 4 * self.period) / self.period))
         mesh = science(self.addon, "explicit").groove_field(
-            self.case.profile, n, self.period, x_range=(-hx - 0.5, hx + 0.5))
+            self.case.profile, n, self.period, x_range=(-hx - 0.5 * ORTHO, hx + 0.5 * ORTHO))
         if self.grooves is not None:
             old = self.grooves.data
             bpy.data.objects.remove(self.grooves)
@@ -410,14 +423,15 @@ class LayeredTruthScene(TruthScene):
     mirror lid elsewhere) in a UV window; the camera looks at the window's centre."""
 
     def __init__(self, addon, case: Case, window=(0.35, 0.35, 0.65, 0.65), res: int = 64, samples: int = 16,
-                 period: float = 1.0 / 1000.0):
+                 period: float = ORTHO / 1000.0):
         super().__init__(addon, case, res=res, samples=samples)
         u0, v0, u1, v1 = window
-        self.plane.scale = (1.0 / 20.0, 1.0 / 20.0, 1.0)          # add_plane(size=40) -> the 2 m UV plane
-        self.mesh = science(addon, "explicit").layer_field(case.profile, case.layers, period, window, plane_size=2.0)
+        size = 2.0 * ORTHO                                        # the UV plane (add_plane(size=40 ORTHO) scaled)
+        self.plane.scale = (size / (40.0 * ORTHO), size / (40.0 * ORTHO), 1.0)
+        self.mesh = science(addon, "explicit").layer_field(case.profile, case.layers, period, window, plane_size=size)
         self.grooves = add_mesh(self.scene, self.mesh, self.truth_mat, "Layered grooves")
-        self.span = 2.0 * min(u1 - u0, v1 - v0)
-        self.centre = ((u0 + u1 - 1.0), (v0 + v1 - 1.0), 0.0)     # plane coords of the window centre
+        self.span = size * min(u1 - u0, v1 - v0)
+        self.centre = (0.5 * size * (u0 + u1 - 1.0), 0.5 * size * (v0 + v1 - 1.0), 0.0)     # plane coords of the window centre
 
     def set_view(self, theta_deg: float, azimuth_deg: float):
         import bpy
