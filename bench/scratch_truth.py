@@ -59,7 +59,12 @@ VIEWS = {
 }
 WORLDS = ("white", "first", "second")
 
-ORTHO = 1.0          # metres seen across the image (before snapping to whole periods)
+#: metres seen across the image (before snapping to whole periods).  Large on purpose: Cycles traces the
+#: extruded polyline of a curved profile differently at millimetre periods (quartic 0.5 straight down: mean
+#: bounces 1.69 at a 2 mm period vs 1.735 at 17 mm, the 2D tracer and an independent 2D Monte Carlo; gold
+#: albedo 2-4 % high) - an absolute epsilon in the renderer, not the optics; at 16 m / 64 px / 15 grooves per
+#: pixel the period is 17 mm.
+ORTHO = 16.0
 RES = 16             # pixels across
 GROOVES_PER_PIXEL = 15
 
@@ -90,10 +95,18 @@ def projected_period(omega: np.ndarray, period: float) -> float:
     return period / abs(dy)
 
 
-def snapped_scale(omega: np.ndarray, period: float, scale: float = ORTHO) -> float:
-    """The orthographic scale (image width) nearest to ``scale`` holding a whole number of projected periods."""
+def snapped_scale(omega: np.ndarray, period: float, scale: float = ORTHO, res: int | None = None) -> float:
+    """The orthographic scale (image width) nearest to ``scale`` holding a whole number N of projected periods,
+    with N coprime to the pixel count ``res``: the grooves' phase then steps by 1/res of a period from pixel to
+    pixel.  With a whole number of periods per pixel every pixel sees the same sub-pixel pattern, and Cycles'
+    per-pixel sample positions are correlated enough to bias the image mean (quartic 0.5, gold, straight down:
+    blue albedo 0.239 at 15 periods per pixel, 0.226-0.237 at 15.25-15.5, 0.2291 exact)."""
     p = projected_period(omega, period)
-    return max(1, round(scale / p)) * p
+    n = max(1, round(scale / p))
+    if res:
+        while math.gcd(n, int(res)) != 1:
+            n += 1
+    return n * p
 
 
 def footprint(omega: np.ndarray, scale: float) -> tuple[float, float]:
@@ -187,7 +200,7 @@ def set_world(addon, scene, kind: str) -> None:
     tree.links.new(vm.outputs["Vector"], bg.inputs["Color"])
 
 
-def set_camera(scene, omega: np.ndarray, scale: float, target=(0.0, 0.0, 0.0), distance: float = 20.0):
+def set_camera(scene, omega: np.ndarray, scale: float, target=(0.0, 0.0, 0.0), distance: float = 20.0 * ORTHO):
     """Orthographic camera looking along -omega at ``target``, scratch direction vertical in the image."""
     import bpy
     from mathutils import Matrix
@@ -218,12 +231,12 @@ def configure(addon, scene, samples: int, res: int, seed: int, osl: bool, bounce
     scene.render.use_persistent_data = True
 
 
-def lamp(addon, scene, omega_view: np.ndarray, energy: float = 400.0, size: float = 0.5):
+def lamp(addon, scene, omega_view: np.ndarray, energy: float = 400.0 * ORTHO ** 2, size: float = 0.5 * ORTHO):
     """A small area light near the mirror direction of the view (rotated 20 deg about the normal)."""
     a = math.atan2(omega_view[1], omega_view[0]) + math.pi + math.radians(20.0)
     t = max(math.acos(min(max(omega_view[2], -1.0), 1.0)), math.radians(20.0))
     d = np.array([math.sin(t) * math.cos(a), math.sin(t) * math.sin(a), math.cos(t)])
-    return addon.render.add_light(scene, "AREA", location=tuple(6.0 * d), energy=energy, size=size)
+    return addon.render.add_light(scene, "AREA", location=tuple(6.0 * ORTHO * d), energy=energy, size=size)
 
 
 @dataclass
@@ -301,7 +314,7 @@ class TruthScene:
         params = sm.validate(profile=case.profile, fresnel=case.fresnel, layers=case.layers, base="mirror",
                              **case.material_kw)
         self.material = sm.build(addon.materials.new_material(f"Scratch {case.name}"), params)
-        self.plane = addon.render.add_plane(self.scene, size=40.0, material=self.material, name="Material plane")
+        self.plane = addon.render.add_plane(self.scene, size=40.0 * ORTHO, material=self.material, name="Material plane")
         self.truth_mat = mirror_material(addon, case.fresnel)
         self.grooves = None
         self.light = None
@@ -320,11 +333,11 @@ class TruthScene:
 
         omega = view_vector(theta_deg, azimuth_deg)
         self.omega = omega
-        scale = snapped_scale(omega, self.period)
+        scale = snapped_scale(omega, self.period, res=self.res)
         hx, hy = footprint(omega, scale)
         n = int(math.ceil(2.0 * (hy + 4 * self.period) / self.period))
         mesh = science(self.addon, "explicit").groove_field(
-            self.case.profile, n, self.period, x_range=(-hx - 0.5, hx + 0.5))
+            self.case.profile, n, self.period, x_range=(-hx - 0.5 * ORTHO, hx + 0.5 * ORTHO))
         if self.grooves is not None:
             old = self.grooves.data
             bpy.data.objects.remove(self.grooves)
@@ -385,16 +398,142 @@ def errors(meas: dict, path: str) -> dict:
             e[k] = float(np.max(np.abs(m[k] - t[k])))
     if t.get("studio") is not None:
         e["studio"] = float(np.max(np.abs(m["studio"] - t["studio"]) / np.maximum(t["studio"], 1e-6)))
-    nz = lambda d, w: float(np.max(np.hypot(d["noise"][w], t["noise"][w]) / A_t))  # noqa: E731
+    # noise of the difference (quadrants of material - truth: the scratch pattern both share cancels)
+    dn = lambda w: quadrant_noise(m["img"][w] - t["img"][w])  # noqa: E731
+    nz = lambda d, w: float(np.max(dn(w) / A_t))  # noqa: E731
     e["noise_A"] = nz(m, "white")
     if "first" in t["noise"]:
         e["noise_m1"] = 2 * nz(m, "first")
     if "second" in t["noise"]:
         e["noise_m2"] = nz(m, "second")
     if "studio" in t["noise"]:
-        e["noise_studio"] = float(np.max(np.hypot(m["noise"]["studio"], t["noise"]["studio"])
-                                         / np.maximum(t["studio"], 1e-6)))
+        e["noise_studio"] = float(np.max(dn("studio") / np.maximum(t["studio"], 1e-6)))
     return e
+
+
+# ------------------------------------------------------------------------------------------------ layered
+#: layered case: 3 layers spread over 40 deg, 0.2 x 0.02 UV scratches, density 0.2, on a 2 m plane
+LAYERED = dict(n_layers=3, theta_deg=40.0, length=0.2, width=0.02, density=0.2, seed=1)
+LAYERED_VIEWS = {"down": (0.0, 0.0), "along45": (45.0, 0.0), "across45": (45.0, 90.0), "oblique60/30": (60.0, 30.0)}
+
+
+class LayeredTruthScene(TruthScene):
+    """Layered scratches (eq. 4, 7) vs explicit grooves placed by the same layer parameters
+    (``explicit.layer_field``: grooves of ``period`` under every scratched cell of Cycles' own Voronoi, a flat
+    mirror lid elsewhere) in a UV window; the camera looks at the window's centre."""
+
+    def __init__(self, addon, case: Case, window=(0.35, 0.35, 0.65, 0.65), res: int = 64, samples: int = 16,
+                 period: float = ORTHO / 1000.0):
+        super().__init__(addon, case, res=res, samples=samples)
+        u0, v0, u1, v1 = window
+        size = 2.0 * ORTHO                                        # the UV plane (add_plane(size=40 ORTHO) scaled)
+        self.plane.scale = (size / (40.0 * ORTHO), size / (40.0 * ORTHO), 1.0)
+        self.mesh = science(addon, "explicit").layer_field(case.profile, case.layers, period, window, plane_size=size)
+        self.grooves = add_mesh(self.scene, self.mesh, self.truth_mat, "Layered grooves")
+        self.span = size * min(u1 - u0, v1 - v0)
+        self.centre = (0.5 * size * (u0 + u1 - 1.0), 0.5 * size * (v0 + v1 - 1.0), 0.0)     # plane coords of the window centre
+
+    def set_view(self, theta_deg: float, azimuth_deg: float):
+        import bpy
+
+        omega = view_vector(theta_deg, azimuth_deg)
+        self.omega = omega
+        # the view's footprint must stay inside the window: shrink the image by 1/cos
+        scale = 0.8 * self.span * max(omega[2], 0.2)
+        set_camera(self.scene, omega, scale, target=self.centre)
+        if self.light is not None:
+            data = self.light.data
+            bpy.data.objects.remove(self.light)
+            bpy.data.lights.remove(data)
+        self.light = lamp(self.addon, self.scene, omega)
+        return self.mesh
+
+
+def layered_cases(addon) -> list[Case]:
+    profiles, fresnel, layers = science(addon, "profiles"), science(addon, "fresnel"), science(addon, "layers")
+    lp = layers.LayerParams(**LAYERED)
+    return [Case("q05 3 layers", profiles.quartic(0.5, segments=32), None, lp),
+            Case("v30_gold 3 layers", profiles.v_groove(30.0), fresnel.conductor_preset("gold"), lp)]
+
+
+# ------------------------------------------------------------------------------------------------- figure
+FIGURE_CASES = ("v30_gold", "q05_gold", "bulges")
+FIGURE_VIEWS = {"along the scratch": 0.0, "across the scratch": 90.0}
+
+
+def figure_images(addon, case: Case, azimuth_deg: float, res: int = 128, samples: int = 64,
+                  elevation_deg: float = 40.0, period: float = 1.0 / 1200.0):
+    """Perspective renders (truth, osl, svm) [res, res, 3] of a plane of explicit grooves and of the material
+    plane under the studio world and a small area light placed opposite the camera (the highlight streak)."""
+    import bpy
+
+    sm = addon.scratch_material
+    scene = addon.render.reset_scene()
+    configure(addon, scene, samples, res, 0, False)
+    params = sm.validate(profile=case.profile, fresnel=case.fresnel, layers=None, base="mirror")
+    mat = sm.build(addon.materials.new_material(f"Scratch {case.name}"), params)
+    plane = addon.render.add_plane(scene, size=8.0, material=mat)
+    mesh = science(addon, "explicit").groove_field(case.profile, int(3.2 / period), period, x_range=(-3.0, 3.0))
+    grooves = add_mesh(scene, mesh, mirror_material(addon, case.fresnel))
+    addon.render.studio_world(scene, 1.0)
+    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
+    d = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+    cam = addon.render.add_camera(scene, location=tuple(2.2 * d), target=(0.0, 0.0, 0.0), lens=70.0)
+    scene.camera = cam
+    ld = np.array([-d[0], -d[1], d[2]]) * 3.0
+    ld = ld + 0.25 * np.array([-math.sin(a), math.cos(a), 0.0])
+    addon.render.add_light(scene, "AREA", location=tuple(ld), energy=60.0, size=0.15)
+    tmp = tempfile.mkdtemp(prefix="scratch_truth_fig_")
+    out = {}
+    for what in ("truth", "osl", "svm"):
+        grooves.hide_render = what != "truth"
+        plane.hide_render = what == "truth"
+        scene.cycles.shading_system = what == "osl"
+        out[what], _ = addon.render.render_array(scene, tmp, what)
+    return out
+
+
+def write_figure(addon, path, res: int = 128, samples: int = 64, table_rows=None) -> list:
+    """docs/img/scratch_truth.png: explicit grooves next to the material (OSL), same view; per panel the image
+    mean rel. error and the 8x8-block rel. L1 error of the OSL and SVM paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cs = {c.name: c for c in cases(addon)}
+    nrow, ncol = len(FIGURE_CASES), 2 * len(FIGURE_VIEWS)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.3 * ncol, 2.45 * nrow))
+    stats = []
+    for r, cname in enumerate(FIGURE_CASES):
+        for j, (vname, az) in enumerate(FIGURE_VIEWS.items()):
+            imgs = figure_images(addon, cs[cname], az, res, samples)
+            t = imgs["truth"]
+            err = {}
+            for p in ("osl", "svm"):
+                mean = float(np.max(np.abs(imgs[p].mean((0, 1)) - t.mean((0, 1))) / t.mean((0, 1))))
+                b = lambda im: im.reshape(res // 8, 8, res // 8, 8, 3).mean((1, 3))  # noqa: E731
+                block = float(np.abs(b(imgs[p]) - b(t)).sum() / b(t).sum())
+                err[p] = (mean, block)
+            stats.append((cname, vname, err))
+            show = lambda im: np.clip(im / (1.0 + im), 0, 1) ** (1 / 2.2)  # noqa: E731
+            for k, (im, lab) in enumerate(((t, "explicit grooves"), (imgs["osl"], "material (OSL)"))):
+                ax = axes[r, 2 * j + k]
+                ax.imshow(show(im))
+                ax.set_xticks([])
+                ax.set_yticks([])
+                title = f"{cname}, {vname}\n{lab}"
+                if k == 1:
+                    title += (f"\nmean {100 * err['osl'][0]:.1f} %, blocks {100 * err['osl'][1]:.1f} %"
+                              f"\n(SVM {100 * err['svm'][0]:.1f} / {100 * err['svm'][1]:.1f} %)")
+                ax.set_title(title, fontsize=7)
+    fig.suptitle(f"Scratch material vs Cycles path tracing explicit grooves ({res} px, {samples} spp, studio "
+                 "world + small area light; errors: image mean, 8x8 blocks)", fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return stats
 
 
 def main(argv: list[str]) -> int:
@@ -408,16 +547,29 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--paths", default="osl,svm")
     ap.add_argument("--out", default="scratch_truth.md")
     ap.add_argument("--label", default="")
+    ap.add_argument("--figure", action="store_true", help="only write docs/img/scratch_truth.png")
+    ap.add_argument("--layered", action="store_true", help="the layered cases (explicit.layer_field) instead")
     a = ap.parse_args(argv)
     addon = _util.blender(register=True)
+    if a.figure:
+        stats = write_figure(addon, ROOT / "docs" / "img" / "scratch_truth.png")
+        for row in stats:
+            print(row)
+        return 0
     views = [v for v in VIEWS if not a.views or v in a.views.split(",")]
     paths = tuple(a.paths.split(","))
     rows = []
     t0 = time.perf_counter()
-    for case in cases(addon, [c for c in a.cases.split(",") if c] or None):
-        ts = TruthScene(addon, case, res=a.res, samples=a.samples)
+    todo = layered_cases(addon) if a.layered else cases(addon, [c for c in a.cases.split(",") if c] or None)
+    if a.layered:
+        views = [v for v in LAYERED_VIEWS if not a.views or v in a.views.split(",")]
+    for case in todo:
+        ts = (LayeredTruthScene(addon, case, res=a.res, samples=a.samples) if a.layered
+              else TruthScene(addon, case, res=a.res, samples=a.samples))
+        if a.layered:
+            print(case.name, {k: ts.mesh.meta[k] for k in ("coverage", "overlap", "scratched", "runs")}, flush=True)
         for vname in views:
-            meas = measure_view(ts, VIEWS[vname], ("truth",) + paths)
+            meas = measure_view(ts, (LAYERED_VIEWS if a.layered else VIEWS)[vname], ("truth",) + paths)
             for p in paths:
                 e = errors(meas, p)
                 rows.append([case.name, vname, p, 100 * e["A"], 100 * e["m1"], 100 * e["m2"], 100 * e["studio"],
@@ -429,7 +581,9 @@ def main(argv: list[str]) -> int:
             f"{a.res}x{a.res} px orthographic, {GROOVES_PER_PIXEL} grooves per pixel, {a.samples} spp; "
             f"A: albedo rel. error (max RGB); m1, m2: |error| of E[d], E[d^2] of the exit direction (max component, "
             f"x100); studio: image mean rel. error under the studio world + a small area light.  Views: "
-            + ", ".join(f"{k} = {v[0]:g}/{v[1]:g}" for k, v in VIEWS.items() if k in views)
+            + ", ".join(f"{k} = {v[0]:g}/{v[1]:g}" for k, v in (LAYERED_VIEWS if a.layered else VIEWS).items()
+                        if k in views)
+            + (f".  Layered: {LAYERED}, explicit grooves of period 1 mm in a 0.6 m window" if a.layered else "")
             + f".  {time.perf_counter() - t0:.0f} s.\n\n" + _util.format_table(head, rows) + "\n")
     _util.out_path(a.out).write_text(text)
     print(text)

@@ -39,22 +39,3 @@ def test_material_matches_explicit_grooves(addon, scene, case, view):
         assert e["A"] < 0.01 + 3 * e["noise_A"], (path, e)
         assert e["m1"] < 0.01 + 3 * e["noise_m1"], (path, e)
         assert e["m2"] < 0.01 + 3 * e["noise_m2"], (path, e)
-
-
-def test_explicit_grooves_are_the_profile(addon):
-    """The mesh is the periodic profile: n grooves of the given period, flat top at z = 0, the profile's
-    depth, and (seen from above) its facets' slopes are the profile's."""
-    ex, profiles = st.science(addon, "explicit"), st.science(addon, "profiles")
-    prof = profiles.v_groove(30.0)
-    m = ex.groove_field(prof, 10, 0.01, x_range=(-1.0, 1.0))
-    z = m.verts[:, 2]
-    assert np.isclose(z.max(), 0.0) and np.isclose(z.min(), -0.01 * prof.depth)
-    assert np.isclose(m.meta["y_range"][1] - m.meta["y_range"][0], 0.1)
-    p0, p1, p2 = (m.verts[m.quads[:, k]] for k in range(3))
-    nrm = np.cross(p1 - p0, p2 - p1)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    assert np.all(nrm[:, 2] > 0)                                          # facing up
-    tilt = np.degrees(np.arccos(nrm[:, 2]))
-    np.testing.assert_allclose(np.unique(np.round(tilt, 6)), [60.0], atol=1e-6)  # V-groove 30 deg half angle
-    with pytest.raises(ValueError, match="period"):
-        ex.groove_field(prof, 10, 0.0)
