@@ -57,7 +57,8 @@ def main(argv) -> int:
     brdf = scratch_brdf.simulate(sm.validate(**base).profile, resolution=M, fresnel=sm.validate(**base).fresnel)
     for shape in shapes:  # precompute time of the lobe tables (no cache)
         t0 = time.perf_counter()
-        d = (scratch_lobes.table_lobes(brdf, slices=64, use_cache=False) if shape == "table" else
+        d = (scratch_lobes.table_lobes(sm.validate(**base).profile, sm.validate(**base).fresnel,
+                                            resolution=M, slices=64, use_cache=False) if shape == "table" else
              scratch_lobes.lobe_tables(brdf, K=8, slices=64, jitter=shape == "box", use_cache=False))
         pre[shape] = (time.perf_counter() - t0, sm.fit_error(d))
 

@@ -21,10 +21,12 @@ Per shading point (world space; n = shading normal, t = UV tangent, b = n x t):
 where a lobe is a GGX (or Beckmann) microfacet lobe with normal N'_j = cos t_j n + sin t_j v_k and
 tangent u_k (see ``precompute.scratch.lobe_fit``), R_γ(θo) = (2|θo|/π)^γ and γ_j is γ at the lobe's centre.
 
-With ``ShaderSpec.table`` (tabulated-tilt lobes, ``precompute.scratch.lobe_table``) the fitted lobes are
-replaced by one narrow lobe per sample: aim bin b of the slice picked by a binary search in its CDF
-(probability p_b / P), tilt drawn inside the bin with the same hash, weight W_b(θo) P / p_b with
-W_b = R_γb w^m_b + (1 − R_γb) w^0_b (eq. 2 per bin); its expectation is the table slice.
+With ``ShaderSpec.table`` (tabulated-tilt lobes, ``precompute.scratch.lobes.table_lobes``) the fitted lobes
+are replaced by one narrow lobe per sample from exact view slices at adaptive φo nodes
+(``precompute.scratch.slices``): the node around φo picked with its linear weight, aim bin b of its slice by a
+binary search in its CDF (probability p_b / P), the aim at the bin's exit centroid, moved to the actual φo
+(odd bounces mirror-like, even bounces retro-like), weight P Y_b(θo) with Y_b = Σ_k coef_bk B_k(v) (eq. 2
+generalised to a per-material θo basis, v = 1 − sqrt(cos θo)); its expectation is the exact slice.
 
 Layer rotation note: eq. 7 is printed as R(Θ_k) diag(l, w)^-1; rotating *after* the stretch would
 leave the scratches axis-aligned (a circle's image under the stretch does not rotate), so the UV
@@ -101,29 +103,52 @@ class ShaderSpec:
     name: str = "scratch_svbrdf"
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
     voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
+    cost_off: int = 0                       # bench/scratch_cost.py only: COST_OFF stage bits (1 Voronoi, 2 footprint
+                                            # α, 4 CDF search, 8 closure set-up; table lobes), 0 in every material
 
 
 @dataclass
 class TableLobes:
-    """Tabulated-tilt lobes (``precompute.scratch.lobe_table``): per slice s and aim bin b the ρm weight
-    ``w_m [S, M]``, the ρ0 weights ``w_0 [S, M, 3]`` (None: lossless), ``gamma [S, M]``, the
-    bin-picking ``cdf [S, M+1]`` and ``total [S]``; ``alpha_y`` the lobes' GGX width; ``strata``
-    the closures summed in ``lobe_mode="all"`` (h_k = (k + h) / strata)."""
+    """Tabulated-tilt lobes from exact view slices (``precompute.scratch.lobes.table_lobes``): node angles
+    ``phi [S]`` and the node interval of each uniform φo cell ``cell [G]``; per node s and aim bin b the
+    bin-picking ``cdf [S, M+1]`` / ``total [S]`` and the aim code ``cen [S, M]`` (exit centroid + 2 for even
+    bounces); the θo dependence ``coef [S, M / y_group, K, 3]`` on the basis ``basis [K, NT, 3]`` (None:
+    lossless); ``alpha_y`` the lobes' GGX width; ``strata`` the closures summed in ``lobe_mode="all"``."""
 
-    w_m: np.ndarray
-    w_0: np.ndarray | None
-    gamma: np.ndarray
+    phi: np.ndarray
+    cell: np.ndarray
     cdf: np.ndarray
     total: np.ndarray
+    cen: np.ndarray
+    coef: np.ndarray | None
+    basis: np.ndarray | None
     alpha_y: float
+    y_group: int = 1
     strata: int = 1
+    alias_prob: np.ndarray | None = None    # [S, M] alias table of the bins (lobe_table.alias_table); None: from cdf
+    alias_idx: np.ndarray | None = None
 
     @classmethod
     def from_tables(cls, t: dict, strata: int = 1) -> "TableLobes":
         """From ``precompute.scratch.lobes.table_lobes``."""
-        return cls(np.asarray(t["w_m"], float), None if t.get("w_0") is None else np.asarray(t["w_0"], float),
-                   np.asarray(t["gamma"], float), np.asarray(t["cdf"], float), np.asarray(t["total"], float),
-                   float(t["alpha_y"]), int(strata))
+        opt = lambda k: None if t.get(k) is None else np.asarray(t[k], float)  # noqa: E731
+        ap, ai = t.get("alias_prob"), t.get("alias_idx")
+        return cls(np.asarray(t["phi"], float), np.asarray(t["cell"], np.int64), np.asarray(t["cdf"], float),
+                   np.asarray(t["total"], float), np.asarray(t["cen"], float), opt("coef"), opt("basis"),
+                   float(t["alpha_y"]), int(t.get("y_group", 1)), int(strata),
+                   None if ap is None else np.asarray(ap, float), None if ai is None else np.asarray(ai, int))
+
+    @property
+    def lossless(self) -> bool:
+        return self.basis is None
+
+    def alias(self) -> tuple[np.ndarray, np.ndarray]:
+        """(prob [S, M], alias [S, M]): the alias table the shader samples bins with
+        (``precompute.scratch.lobe_table.alias_table`` of ``cdf``)."""
+        if self.alias_prob is None or self.alias_idx is None:
+            from ..precompute.scratch.lobe_table import alias_table
+            return alias_table(self.cdf)
+        return self.alias_prob, self.alias_idx
 
     @property
     def n_slices(self) -> int:
@@ -135,9 +160,12 @@ class TableLobes:
 
 
 def _table_arrays(t: TableLobes) -> str:
-    out = const_array("TB_CDF", t.cdf.ravel()) + const_array("TB_TOT", t.total) + const_array("TB_WM", t.w_m.ravel())
-    if t.w_0 is not None:
-        out += const_array("TB_W0", t.w_0.ravel()) + const_array("TB_GAM", t.gamma.ravel())
+    prob, alias = t.alias()
+    out = (const_array("TB_PHI", t.phi) + const_array("TB_CELL", t.cell, "int")
+           + const_array("TB_AP", prob.ravel()) + const_array("TB_AI", alias.ravel(), "int")
+           + const_array("TB_TOT", t.total) + const_array("TB_CEN", t.cen.ravel()))
+    if not t.lossless:
+        out += const_array("TB_Y", t.coef.ravel()) + const_array("TB_B", t.basis.ravel())
     return out
 
 
@@ -160,7 +188,7 @@ def generate(spec: ShaderSpec) -> str:
     tab = spec.table
     if tab is None and spec.lobes_m is None:
         raise ValueError("ShaderSpec needs lobes_m (fitted lobes) or table (tabulated-tilt lobes)")
-    lossless = (tab.w_0 is None) if tab is not None else spec.lobes_0 is None
+    lossless = tab.lossless if tab is not None else spec.lobes_0 is None
     use_base = spec.use_base and layered
     ms = tab.n_slices if tab is not None else spec.lobes_m.n_slices
     if tab is None and not lossless and spec.lobes_0.n_slices != ms:
@@ -180,7 +208,9 @@ def generate(spec: ShaderSpec) -> str:
         if not (isinstance(strata, (int, np.integer)) and 1 <= strata <= 64):
             raise ValueError(f"table strata must be an integer in [1, 64]; got {strata!r}")
         flags.update(LOBE_SUM=False, JITTERED=False, MS=ms, AX=spec.alpha_x, MB=tab.n_bins, AY_TB=tab.alpha_y,
-                     TK=int(strata))
+                     TK=int(strata), NS=tab.n_slices, NG=int(tab.cell.size),
+                     KY=0 if tab.lossless else int(tab.basis.shape[0]),
+                     NT=2 if tab.lossless else int(tab.basis.shape[1]), YG=int(tab.y_group))
         tables = [_table_arrays(tab)]
     else:
         per_slice = int(np.diff(spec.lobes_m.start).max(initial=0))
@@ -198,6 +228,8 @@ def generate(spec: ShaderSpec) -> str:
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))
         tables.append(_layer_arrays(spec))
     flags.update(ALPHA_CULL=ALPHA_CULL, VORONOI_INT2=bool(spec.voronoi_int2))
+    if spec.cost_off:
+        flags["COST_OFF"] = int(spec.cost_off)
     return specialise("scratch_svbrdf.osl", flags, {"scratch_svbrdf_tables.h": "\n".join(tables)},
                       "osl/scratch_svbrdf.py")
 

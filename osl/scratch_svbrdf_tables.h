@@ -1,15 +1,18 @@
 // scratch_svbrdf_tables.h -- DEFAULT constant tables of scratch_svbrdf.osl: a tiny made-up material
-// (2 phi_o slices, one lobe or 2 aim bins per slice) so that the .osl file compiles on its own with
+// (2 phi_o slices with one lobe each, or 3 phi_o nodes with 2 aim bins each) so that the .osl file compiles on its own with
 // any flags.  osl/scratch_svbrdf.py replaces this include by the material's tables (same names).
 // Declarations inside the shader body (OSL has no file-scope variables).
 
 #if LOBE_TABLE
-    float TB_CDF[6] = {0, 0.5, 1, 0, 0.5, 1};
-    float TB_TOT[2] = {0.9, 0.9};
-    float TB_WM[4] = {0.45, 0.45, 0.45, 0.45};
-#if !LOSSLESS
-    float TB_W0[12] = {0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4, 0.4};
-    float TB_GAM[4] = {1, 1, 1, 1};
+    float TB_PHI[3] = {-1.57079633, 0, 1.57079633};
+    int TB_CELL[2] = {0, 1};
+    float TB_AP[6] = {1, 1, 1, 1, 1, 1};
+    int TB_AI[6] = {0, 1, 0, 1, 0, 1};
+    float TB_TOT[3] = {0.9, 0.9, 0.9};
+    float TB_CEN[6] = {0.5, 0.5, 0.5, 0.5, 0.5, 0.5};
+#if KY
+    float TB_Y[6] = {0.8, 0.8, 0.8, 0.8, 0.8, 0.8};
+    float TB_B[6] = {1, 1, 1, 1, 1, 1};
 #endif
 #else
     int LM_START[3] = {0, 1, 2};

@@ -63,7 +63,8 @@ def scratch_specs():
     for lossy in (False, True):
         brdf = scratch_brdf.simulate(profiles.quartic(0.3), resolution=16,
                                      fresnel=fresnel.conductor_preset("gold") if lossy else None)
-        t = scratch_lobes.table_lobes(brdf, slices=4)
+        t = scratch_lobes.table_lobes(profiles.quartic(0.3), fresnel.conductor_preset("gold") if lossy else None,
+                                      resolution=64, slices=4)
         lobes[lossy, "table"] = dict(lobes_m=None, table=scratch_svbrdf.TableLobes.from_tables(t, strata=4),
                                      alpha_x=t["alpha_x"])
         for shape in ("fit", "box"):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["LayerParams", "layer_transforms", "mean_coverage", "COVERAGE_D", "coverage_table", "PAPER_TABLE1",
-           "merged_layers"]
+           "merged_layers", "voronoi_f1", "layer_indicator"]
 
 #: Density grid of the tabulated mean coverage (F1 of a 3x3-searched unit jittered grid is < 1.5).
 COVERAGE_D = np.linspace(0.0, 1.5, 61)
@@ -145,3 +145,59 @@ def merged_layers(params: LayerParams, n_max: int) -> LayerParams:
     density = float(np.interp(target, cbar, d)) if target < cbar[-1] else float(d[-1])
     return LayerParams(int(n_max), params.theta_deg, params.length, params.width, min(density, 1.0), params.seed)
 
+
+
+def _hash_int2_to_vector2(kx: np.ndarray, ky: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles' ``hash_int2_to_vector2`` (node_hash.h, Blender >= 5.0: PCG 2D on signed 32-bit ints)."""
+    with np.errstate(over="ignore"):
+        a = np.int32(1664525)
+        vx = kx.astype(np.int32) * a + np.int32(1013904223)
+        vy = ky.astype(np.int32) * a + np.int32(1013904223)
+        vx = vx + vy * a
+        vy = vy + vx * a
+        vx = vx ^ (vx >> 16)
+        vy = vy ^ (vy >> 16)
+        vx = vx + vy * a
+        vy = vy + vx * a
+    scale = np.float32(1.0) / np.float32(0x7FFFFFFF)
+    return ((vx & np.int32(0x7FFFFFFF)).astype(np.float32) * scale,
+            (vy & np.int32(0x7FFFFFFF)).astype(np.float32) * scale)
+
+
+def voronoi_f1(y) -> np.ndarray:
+    """F1 distance of Cycles' 2D Voronoi texture (Euclidean, randomness 1, scale 1) at points ``y [..., 2]``.
+
+    The numpy twin of ``voronoi_f1`` in Cycles' ``node_voronoi.h`` (integer cells, Blender >= 5.0): the
+    nearest of the feature points ``cell + hash(cell)`` of the 3x3 cells around ``y``.  Used to place
+    explicit grooves where the shader puts scratches (eq. 7).
+    """
+    y = np.asarray(y, np.float64)
+    if y.shape[-1:] != (2,):
+        raise ValueError(f"y: expected points of shape [..., 2], got {y.shape}")
+    cell = np.floor(y)
+    local = y - cell
+    ci = cell.astype(np.int64)
+    best = np.full(y.shape[:-1], np.inf)
+    for j in (-1, 0, 1):
+        for i in (-1, 0, 1):
+            hx, hy = _hash_int2_to_vector2(ci[..., 0] + i, ci[..., 1] + j)
+            best = np.minimum(best, np.hypot(i + hx - local[..., 0], j + hy - local[..., 1]))
+    return best
+
+
+def layer_indicator(uv, params: LayerParams, k: int) -> np.ndarray:
+    """The scratch indicator 1_{S_k}(u, v) of layer ``k`` (eq. 7) at UV points ``uv [..., 2]``: boolean.
+
+    y = diag(l, w)^-1 R(Θ_k) (u, v) + ξ_k (rotation first, as the shader: see osl/scratch_svbrdf.osl) and
+    1 where Cycles' Voronoi F1(y) <= d.
+    """
+    if not isinstance(params, LayerParams):
+        raise ValueError(f"params: expected a LayerParams, got {type(params).__name__}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 0 <= k < params.n_layers:
+        raise ValueError(f"k: expected a layer index in [0, {params.n_layers - 1}], got {k!r}")
+    uv = np.asarray(uv, np.float64)
+    theta_k, xi_k = layer_transforms(params)
+    c, s = math.cos(theta_k[k]), math.sin(theta_k[k])
+    y = np.stack([(c * uv[..., 0] + s * uv[..., 1]) / params.length + xi_k[k, 0],
+                  (-s * uv[..., 0] + c * uv[..., 1]) / params.width + xi_k[k, 1]], -1)
+    return voronoi_f1(y) <= params.density

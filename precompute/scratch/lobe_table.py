@@ -28,7 +28,7 @@ import numpy as np
 from ..cycles.ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
-__all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model"]
+__all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model", "box_albedo"]
 
 
 def default_width(M: int) -> float:
@@ -166,3 +166,102 @@ def sample_bins(cdf, s, h):
     c0, c1 = cdf[s, lo], cdf[s, lo + 1]
     frac = np.where(c1 > c0, (h - c0) / np.where(c1 > c0, c1 - c0, 1.0), 0.5)
     return lo, np.clip(frac, 0.0, 1.0)
+
+
+def box_albedo(phi_o, M: int, centroid, alpha_y=None, alpha_x: float = 1e-4, band=BAND) -> np.ndarray:
+    """What Cycles renders per unit closure weight of each bin's lobe of the view slices: a [S, M].
+
+    The lobe of bin b of the slice at ``phi_o[s]`` aims uniformly in ``[c - h, c + h]`` of the bin (c =
+    ``centroid[s, b]``, a fraction of the bin; h = min(c, 1 - c)), so its tilt is uniform in a box of
+    half width h pi / (2 M) around (aim + phi_o) / 2; Cycles' G2 and horizon losses make a < 1 near
+    grazing.  Bins |m - b| <= ``band`` are evaluated (``cycles_ggx.cone_collapse_binned_jittered_windows``).
+    Used by ``precompute.scratch.lobes.table_lobes`` (weights = mass / a, Raymond et al. 2016 eq. 5).
+    """
+    from ..cycles.ggx import cone_collapse_binned_jittered_windows as windows
+
+    phi_o = np.atleast_1d(np.asarray(phi_o, float))
+    c = np.asarray(centroid, float)
+    if not (isinstance(M, (int, np.integer)) and M >= 4) or c.shape != (phi_o.size, M):
+        raise ValueError(f"centroid must be [S, M] with S = phi_o.size and M >= 4; got {c.shape}")
+    if not np.all(np.isfinite(phi_o)) or np.any(np.abs(phi_o) >= 0.5 * np.pi):
+        raise ValueError("phi_o must hold angles in (-pi/2, pi/2) radians")
+    ay = default_width(M) if alpha_y is None else float(alpha_y)
+    d = np.pi / M
+    h = np.minimum(c, 1.0 - c)
+    aim = -0.5 * np.pi + (np.arange(M)[None, :] + c) * d
+    tilt = 0.5 * (aim + phi_o[:, None])
+    offs = np.arange(-band, band + 1)
+    idx = np.arange(M)[:, None] + offs[None, :]
+    win = -0.5 * np.pi + d * (idx[..., None] + np.array([0, 1]))
+    edges = np.concatenate([win[:, :, 0], win[:, -1:, 1]], axis=1)                    # [M, W+1]
+    S = phi_o.size
+    out = np.empty((S, M))
+    step = max(1, 200_000 // (M * (2 * band + 1)))
+    for a in range(0, S, step):
+        b = min(S, a + step)
+        n = b - a
+        vals = windows(np.repeat(phi_o[a:b], M), np.tile(edges, (n, 1)), tilt[a:b].ravel(), ay,
+                       (0.5 * d * h[a:b]).ravel(), alpha_x)                              # [n M, W]
+        inside = ((idx >= 0) & (idx < M))[None].repeat(n, 0).reshape(n * M, -1)
+        out[a:b] = (vals * inside).sum(1).reshape(n, M) * d
+    return out
+
+
+def alias_table(cdf):
+    """Walker's alias table of each slice's bin distribution p_b = cdf[b+1] - cdf[b] (Vose's construction).
+
+    ``cdf`` [S, M+1] (``proposal``) -> (prob [S, M] float, alias [S, M] int).  Sampling with one uniform
+    h in [0, 1) (``sample_alias``): u = h M, j = floor(u), f = u - j; bin b = j if f < prob_j, else alias_j.
+    It picks bin b with probability exactly p_b (one table lookup instead of the binary search of
+    ``sample_bins``); empty slices (all p_b = 0) get prob = 1, alias = own bin.
+    """
+    cdf = np.asarray(cdf, float)
+    if cdf.ndim != 2 or cdf.shape[1] < 2:
+        raise ValueError(f"cdf must be [S, M+1] with M >= 1; got shape {cdf.shape}")
+    S, M = cdf.shape[0], cdf.shape[1] - 1
+    p = np.clip(np.diff(cdf, axis=1), 0.0, None)
+    prob = np.ones((S, M))
+    alias = np.tile(np.arange(M), (S, 1))
+    for s in range(S):
+        tot = p[s].sum()
+        if tot <= 0:
+            continue
+        q = p[s] * (M / tot)
+        small = [j for j in range(M) if q[j] < 1.0]
+        large = [j for j in range(M) if q[j] >= 1.0]
+        while small and large:
+            j, k = small.pop(), large.pop()
+            prob[s, j], alias[s, j] = q[j], k
+            q[k] -= 1.0 - q[j]
+            (small if q[k] < 1.0 else large).append(k)
+        for j in small + large:  # round-off leftovers: probability 1 of themselves
+            prob[s, j], alias[s, j] = 1.0, j
+    return prob, alias
+
+
+def alias_pmf(prob, alias):
+    """The bin distribution an alias table samples, [S, M]: (prob_b + Σ_{j: alias_j = b} (1 - prob_j)) / M."""
+    prob = np.asarray(prob, float)
+    alias = np.asarray(alias, int)
+    S, M = prob.shape
+    out = prob.copy()
+    for s in range(S):
+        np.add.at(out[s], alias[s], 1.0 - prob[s])
+    return out / M
+
+
+def sample_alias(prob, alias, s, h):
+    """What the shader does with a uniform h in [0, 1) and an alias table: (bin b, fraction inside it),
+    the fraction uniform in [0, 1) given b (the rest of h after the pick)."""
+    prob = np.asarray(prob, float)
+    alias = np.asarray(alias, int)
+    M = prob.shape[1]
+    s, h = np.broadcast_arrays(np.asarray(s, int), np.asarray(h, float))
+    u = h * M
+    j = np.minimum(np.floor(u).astype(int), M - 1)
+    f = u - j
+    pj = prob[s, j]
+    take = f >= pj
+    b = np.where(take, alias[s, j], j)
+    frac = np.where(take, (f - pj) / np.maximum(1.0 - pj, 1e-12), f / np.maximum(pj, 1e-12))
+    return b, np.clip(frac, 0.0, 1.0)

@@ -165,48 +165,71 @@ def _conserve_energy(w: np.ndarray, atoms: np.ndarray, rows: np.ndarray, edges: 
     return w * scale[:, None, :]
 
 
-def table_lobes(brdf, slices: int = 64, use_cache: bool = True) -> dict:
-    """Tabulated-tilt lobes for the shader (``precompute.scratch.lobe_table``) at the ``slices`` slice centres.
+def table_lobes(profile, fresnel=None, resolution: int = 256, slices: int = 64, use_cache: bool = True) -> dict:
+    """Tabulated-tilt lobes for the shader from exact view slices (``precompute.scratch.slices``; Raymond et
+    al. 2016 eqs. 2, 5): per φo node s and φi bin b a narrow GGX lobe aimed at the bin's exit centroid.
 
-    Returns a dict: ``phi_o [S]``, ``alpha_x``, ``alpha_y`` (the table lobes' GGX width), ``w_m [S, M]``
-    (ρm closure weight per aim bin, mono), ``w_0 [S, M, 3]`` (ρ0, RGB; None when lossless), ``gamma
-    [S, M]`` (γ of eq. 2 per bin), ``cdf [S, M+1]`` and ``total [S]`` (the bin-picking distribution
-    p_b = w^m_b + mean(w^0_b)), ``error_m`` / ``error_0`` [S] (rel. L1 of what the lobes render on
-    average vs ρ cos, worst channel).  Cached by a hash of the tables.
+    ``profile`` a ``profiles.Profile``; ``fresnel`` None (lossless) or a ``precompute.fresnel`` model;
+    ``resolution`` M φi bins; ``slices`` the uniform start of the adaptive φo nodes (refined where the
+    interpolated slice errs, ``slices.view_slices``).  Returns a dict:
+
+    - ``phi [S]`` node angles (rad), ``cell [G]`` node interval of each of G uniform φo cells;
+    - ``cdf [S, M+1]``, ``total [S]``: the bin-picking distribution p_b = w_b / P of the closure weights
+      w_b = mass_b / a_b (a_b what Cycles renders per unit weight, ``lobe_table.box_albedo``);
+    - ``alias_prob [S, M]``, ``alias_idx [S, M]``: the alias table of that distribution
+      (``lobe_table.alias_table``; the shaders' bin pick);
+    - ``cen [S, M]``: the aim code, centroid fraction c (aim uniform in [c - h, c + h] of the bin,
+      h = min(c, 1 - c)) plus 2 for even-bounce bins (their exit moves with φo like φo + const);
+    - ``coef [S, M / y_group, K, 3]``, ``basis [K, NT, 3]`` (None when lossless): the sampled closure's
+      weight is ``P max(Σ_k coef B_k(v), 0)`` per channel, v = 1 - sqrt(cos θo) sampled on NT points;
+    - ``alpha_x``, ``alpha_y``, ``y_group``, ``error_m`` (worst interpolated-slice moment error, tolerance
+      relaxed beyond 80 deg) and ``error_0`` (worst θo-basis error), ``lost`` (flux the lobes cannot render).
+    Cached by a hash of the inputs and the code.
     """
-    if not isinstance(slices, (int, np.integer)) or not 4 <= slices <= 512:
-        raise ValueError(f"slices must be an integer in [4, 512], got {slices!r}")
-    arrays = brdf.arrays()
-    inputs = {"tables": {k: v for k, v in arrays.items() if k in ("rho0", "rho_m", "gamma")}, "slices": int(slices)}
-    version = cache.code_version(sys.modules[__name__], lobe_fit, lobe_table, cycles_ggx)
-    flat = cache.cached_arrays("scratch_table_lobes", version, inputs, lambda: _table_lobes(brdf, int(slices)),
-                               enabled=use_cache)
-    out = {k: flat[k] for k in ("phi_o", "w_m", "gamma", "cdf", "total", "error_m")}
-    out["alpha_x"] = float(flat["alpha_x"][0])
-    out["alpha_y"] = float(flat["alpha_y"][0])
-    out["w_0"] = flat.get("w_0")
-    out["error_0"] = flat.get("error_0")
+    from . import slices as view
+
+    if not isinstance(slices, (int, np.integer)) or not 4 <= slices <= 512 or slices % 2:
+        raise ValueError(f"slices must be an even integer in [4, 512], got {slices!r}")
+    if not isinstance(resolution, (int, np.integer)) or resolution not in (64, 128, 256, 512):
+        raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
+    levels = max(0, int(np.ceil(np.log2(1024 / slices))))
+    inputs = {"profile": profile, "fresnel": fresnel, "resolution": int(resolution), "slices": int(slices)}
+    version = cache.code_version(sys.modules[__name__], lobe_table, view, cycles_ggx)
+
+    def compute():
+        vs = view.view_slices(profile, int(resolution), fresnel, base=int(slices), levels=levels, cache=use_cache)
+        return _table_lobes(vs)
+
+    flat = cache.cached_arrays("scratch_table_lobes", version, inputs, compute, enabled=use_cache)
+    out = {k: flat[k] for k in ("phi", "cdf", "total", "cen")}
+    out["cell"] = flat["cell"].astype(np.int64)
+    for k in ("alpha_x", "alpha_y", "error_m", "error_0", "lost"):
+        out[k] = float(flat[k][0])
+    out["y_group"] = int(flat["y_group"][0])
+    out["coef"] = flat.get("coef")
+    out["basis"] = flat.get("basis")
+    # the alias table of the bin-picking distribution: what both render paths sample bins with (one lookup)
+    out["alias_prob"], out["alias_idx"] = lobe_table.alias_table(out["cdf"])
     return out
 
 
-def _table_lobes(brdf, slices: int) -> dict:
-    rho_m = _as_channels(brdf.rho_m)
-    rho_0 = _as_channels(brdf.rho0)
-    M = rho_m.shape[0]
-    S = min(slices, M)
-    phi_o = lobe_fit.slice_centres(S)
+def _table_lobes(vs) -> dict:
+    M = vs.bins
     ax = 1e-4
     ay = lobe_table.default_width(M)
-    rows_m = lobe_fit.rows_at(rho_m.mean(-1), phi_o)                       # [S, M]
-    w_m, err_m, A = lobe_table.fit_bins(rows_m, phi_o, ay, ax)
-    out = {"phi_o": phi_o, "alpha_x": np.array([ax]), "alpha_y": np.array([ay]), "w_m": w_m, "error_m": err_m,
-           "gamma": lobe_fit.rows_at(_as_channels(brdf.gamma).mean(-1), phi_o)}
-    w_0 = None
-    if not np.allclose(rho_0, rho_m, rtol=1e-6, atol=1e-9):
-        rows_0 = lobe_fit.rows_at(rho_0, phi_o)                            # [S, M, C]
-        w_0, err_0, _ = lobe_table.fit_bins(rows_0, phi_o, ay, ax, atoms=A)
-        if w_0.shape[-1] == 1:
-            w_0 = np.repeat(w_0, 3, -1)
-        out.update({"w_0": w_0, "error_0": err_0})
-    out["cdf"], out["total"] = lobe_table.proposal(w_m, w_0)
+    phi_eval = np.clip(vs.phi, -0.5 * np.pi + 1e-4, 0.5 * np.pi - 1e-4)
+    a = lobe_table.box_albedo(phi_eval, M, vs.centroid, ay, ax)
+    ok = a > 1e-3
+    w = np.where(ok, vs.mass / np.where(ok, a, 1.0), 0.0)
+    cdf, total = lobe_table.proposal(w)
+    out = {"phi": vs.phi, "cell": vs.cell_interval.astype(np.float64), "cdf": cdf, "total": total,
+           "cen": vs.centroid + 2.0 * vs.even, "alpha_x": np.array([ax]), "alpha_y": np.array([ay]),
+           "error_m": np.array([vs.errors["phi"]]), "error_0": np.array([vs.errors["theta"]]),
+           "lost": np.array([float(np.max(vs.mass.sum(1) - (vs.mass * ok).sum(1), initial=0.0)) + vs.errors["lost"]]),
+           "y_group": np.array([float(vs.y_group)])}
+    if vs.basis is not None:
+        coef, basis = vs.coef, vs.basis
+        if coef.shape[-1] == 1:
+            coef, basis = np.repeat(coef, 3, -1), np.repeat(basis, 3, -1)
+        out.update(coef=coef, basis=basis)
     return out

@@ -149,7 +149,7 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
 def lobe_data(params: ScratchParams, brdf) -> dict:
     """Lobe tables for ``params`` (cached): tabulated-tilt lobes, or <= K fitted (plain / box) lobes."""
     if params.lobe_shape == "table":
-        return lobes.table_lobes(brdf, slices=params.slices)
+        return table_lobe_data(params)
     # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
     return lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
                                      dists="ggx" if params.backend == "svm" else "auto", jitter=params.box_lobes)
@@ -162,6 +162,11 @@ def fit_error(lobe_data: dict) -> float:
     else:
         errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
     return float(max(np.max(e) for e in errs))
+
+def table_lobe_data(params: ScratchParams) -> dict:
+    """Table lobes of ``params`` from exact view slices (``lobes.table_lobes``, cached by content hash)."""
+    return lobes.table_lobes(params.profile, params.fresnel, resolution=params.resolution, slices=params.slices)
+
 
 def brdf_table(params: ScratchParams):
     """The scratch BRDF of ``params`` (ρ0, ρm, γ; ``brdf.simulate``, cached by content hash)."""
@@ -176,5 +181,5 @@ def tables(params: ScratchParams) -> dict:
     data = lobe_data(params, brdf) if params.mode == "lobes" else None
     svm = data if data is not None and (params.backend == "svm" or params.lobe_shape == "table") else None
     if svm is None:  # the SVM twin of fitted (per-lobe GGX/Beckmann) or reference shaders: table lobes
-        svm = lobes.table_lobes(brdf, slices=params.slices)
+        svm = table_lobe_data(params)
     return {"brdf": brdf, "lobes": data, "svm_lobes": svm}

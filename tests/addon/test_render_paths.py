@@ -136,7 +136,9 @@ def test_api_material_renders_the_scratches_in_a_default_scene(addon, scene, ren
     lit, means = {}, {}
     for path, kw in (("svm", {}), ("osl", {"osl": True}), ("eevee", {"engine": eevee_engine(), "samples": 16})):
         plane.data.materials[0] = mat
-        img = _render(addon, scene, render_dir, f"{path}_scratched", samples=kw.pop("samples", 32), **kw)
+        # 128 spp: the mean of ~100 glinting pixels; at 32 spp it moved by 6 % between two equivalent SVM
+        # builds (different random streams), 128 spp: SVM 0.3363 vs OSL 0.3350
+        img = _render(addon, scene, render_dir, f"{path}_scratched", samples=kw.pop("samples", 128), **kw)
         plane.data.materials[0] = mirror
         ref = _render(addon, scene, render_dir, f"{path}_mirror", samples=32 if path != "eevee" else 16, **kw)
         lum, lum_ref = img.mean(-1), ref.mean(-1)
