@@ -16,8 +16,9 @@ $(STAMP): requirements.txt
 
 venv: $(STAMP)
 
+# The README image: the demo preset on a floor under three small point lights (near / mid / far highlights).
 demo: $(STAMP)
-	$(VPY) scratch_addon/cli.py --preset demo --out renders/demo.png --samples 64 --res 480 320
+	$(VPY) scratch_addon/cli.py --preset demo --layout highlights --out docs/img/demo.png --samples 16 --res 640 480
 
 test: $(STAMP)
 	$(VPY) -m pytest -q -p no:cacheprovider tests

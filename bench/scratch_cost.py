@@ -1,156 +1,185 @@
-"""Render cost of the scratch SV-BRDF vs the SVM anisotropic GGX baseline (Raymond et al. 2016, Table 2 shape).
+"""Whole-frame render cost of the scratch SV-BRDF vs the SVM anisotropic Glossy (Raymond et al. 2016, Table 2 shape).
 
-All set-ups render the demo scene (torus, studio world, small area light) at equal samples, interleaved
-in one process, median of --repeats; ratios are against the SVM anisotropic GGX in the same run.
+Honest set-up (issue 15 item 3): an orthographic view filled by a UV sphere carrying the material (no background
+pixel), a white world, CPU, equal samples, adaptive sampling off, every set-up built and rendered in the same
+process, interleaved A/B/C... in each of ``--repeats`` rounds; medians.  Per-sample cost
 
-  baseline          node_groups/brushed.py (SVM Glossy, GGX, anisotropic)
-  osl N layers      the generated OSL shader with the default table lobes, N = 1, 4, 16, 32 layers
-                    (hash-picked layer, one sampled table lobe); "fitted lobes": K = 8 fitted lobes
-  fitted, all       4 layers, K = 8 fitted lobes all summed (lobe_mode="all"): the cost of K without picking
-  svm N layers      the node-group path (table lobes: log2 M lookups, one Glossy), N = 1, 4; and 4 layers
-                    with K = 8 fitted lobes (every lobe of a slice summed)
-  fitted K = 1..4   4 layers, OSL, varying the fitted-lobe budget (render cost vs fit error, bench.lobe_fit)
-  skip              the baseline scene rendered with the add-on registered vs not: ratio must be ~1
+    c = (t(spp) - t(1)) / (spp - 1)          (default spp = 129: (t(129) - t(1)) / 128)
 
-    python -m bench scratch_cost [--quick] [--res 192 128] [--spp 32] [--repeats 3]
+removes the fixed scene-sync / OSL-JIT time; ratios are against the SVM anisotropic Glossy (Multiscatter GGX,
+roughness 0.2, anisotropy 0.8) of the same run.
+
+Rows
+  baseline          SVM Glossy, Multiscatter GGX, anisotropic (node_groups/brushed.py)
+  base only         the scratch material's base alone (Metallic BSDF, physical conductor, iron, roughness 0)
+  osl aniso GGX     osl/aniso_ggx.osl: the OSL twin of the baseline (what OSL itself costs)
+  osl / svm N       the fig1c_scratched preset (quartic 0.4, iron, mirror base) with N layers; "osl" renders
+                    the OSL shader (Shading System OSL), "svm" the same material's node-group twin (Shading
+                    System SVM, the default scene, the GPU path)
+  - <stage>         the same with one stage switched off (``cost_off`` bits; the time it saves is its cost):
+                    layer Voronoi (cell centres instead of hashed feature points), footprint α (OSL only:
+                    binary [F1 <= d] at the point), slice/CDF search (bin straight from h), closure set-up
+                    (untilted white lobe instead of the tilted, eq.-2-weighted one)
+  culled            4 layers at density 1e-4: c̄(d) < ALPHA_CULL, every layer culled at this footprint
+  demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
+
+    python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3]
 """
 from __future__ import annotations
 
 import argparse
 import statistics
 import tempfile
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+
+#: cost_off bits (osl/scratch_layer_alpha.h, osl/scratch_svbrdf.osl, node_groups/scratch_svm.py)
+STAGES = {"layer Voronoi": 1, "footprint α": 2, "slice/CDF search": 4, "closure set-up": 8}
 
 
 def _modules():
     from bench._util import blender
 
     scratch_addon = blender()
-    from scratch_materials.scratch_addon import materials, render, scratch_material
+    from scratch_materials.scratch_addon import materials, osl_compile, presets, render, scratch_material
 
-    return scratch_addon, materials, render, scratch_material
-
-
-def _scene(material, render, osl: bool, spp: int, res):
-    scene = render.reset_scene()
-    mat = material()
-    render.studio_world(scene)
-    render.add_torus(scene, material=mat)
-    render.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)
-    render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
-    render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=osl)
-    return scene
+    return scratch_addon, materials, osl_compile, presets, render, scratch_material
 
 
 def main(argv: list[str]) -> int:
-    from bench._util import out_path, pyplot, report
+    import os
+
+    from bench._util import out_path, report
 
     ap = argparse.ArgumentParser(prog="python -m bench scratch_cost")
-    ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--res", type=int, nargs=2, default=(192, 128))
-    ap.add_argument("--spp", type=int, default=32)
+    ap.add_argument("--quick", action="store_true", help="64x64, 33 spp, 1 round, fewer rows")
+    ap.add_argument("--res", type=int, nargs=2, default=(128, 128))
+    ap.add_argument("--spp", type=int, default=129)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--skip-repeats", type=int, default=9,
-                    help="interleaved pairs for the add-on-registered vs not ratio (a small effect needs many)")
-    ap.add_argument("--only-skip", action="store_true", help="measure only the skip ratio")
+    ap.add_argument("--only", default="", help="comma-separated substrings: keep only rows whose name has one")
     a = ap.parse_args(argv)
     if a.quick:
-        a.res, a.spp, a.repeats = (64, 48), 8, 1
-    addon, materials, render, sm = _modules()
+        a.res, a.spp, a.repeats = (64, 64), 33, 1
+    addon, materials, osl_compile, presets, render, sm = _modules()
     tmp = tempfile.mkdtemp(prefix="bench_scratch_cost_")
+    fig1c = dict(presets.get("fig1c_scratched").params)
 
-    def scratch(n_layers, backend="osl", lobes=8, shape="table", **spec):
-        layers = None if n_layers == 0 else dict(n_layers=n_layers, theta_deg=360, length=0.3, width=0.005, density=0.2)
-
+    def scratch(n_layers, cost_off=0, density=None):
         def make():
-            mat = materials.new_material(f"S{n_layers}{backend}{lobes}{shape}")
-            params = sm.validate(profile=("quartic", 0.3), fresnel="aluminium", layers=layers, lobes=lobes,
-                                 base="mirror", resolution=128, slices=64, backend=backend, lobe_shape=shape)
-            return sm.build(mat, params, **spec)
+            layers = dict(fig1c["layers"], n_layers=n_layers)
+            if density is not None:
+                layers["density"] = density
+            mat = materials.new_material(f"S{n_layers}.{cost_off}.{density}")
+            return sm.build(mat, sm.validate(**dict(fig1c, layers=layers)), cost_off=cost_off)
         return make
 
-    baseline = lambda: materials.make_brushed_material(roughness=0.35, anisotropy=0.85)  # noqa: E731
-    setups = [("baseline (SVM aniso GGX)", baseline, False)]
-    layer_counts = (1, 4) if a.quick else (1, 4, 16, 32)
-    setups += [(f"osl {n} layers", scratch(n), True) for n in layer_counts]
-    setups += [("osl 4 layers, fitted lobes", scratch(4, shape="fit"), True)]
-    setups += [("osl 4 layers, fitted, all lobes", scratch(4, shape="fit", lobe_mode="all"), True)]
-    setups += [(f"svm {n} layers", scratch(n, backend="svm"), False) for n in (1, 4)]
-    setups += [("svm 4 layers, fitted lobes", scratch(4, backend="svm", shape="fit"), False)]
-    if not a.quick:
-        setups += [(f"osl 4 layers, fitted K={k}", scratch(4, lobes=k, shape="fit"), True) for k in (1, 2, 4)]
-    # skip: the baseline scene with the add-on registered (nothing of ours in the scene)
-    setups += [("baseline, add-on registered", baseline, False)]
+    def baseline():
+        return materials.make_brushed_material(roughness=0.2, anisotropy=0.8)
 
-    if a.only_skip:
-        return _skip_ratio(a, addon, render, baseline, tmp)
-    for _name, make, osl in setups:  # warm the table cache so timings are render-only
-        _scene(make, render, osl, 1, (8, 8))
-    times = {name: [] for name, _m, _o in setups}
-    times1 = {name: [] for name, _m, _o in setups}
+    def base_only():
+        mat = materials.new_material("base only")
+        node = sm._base_node(mat.node_tree, sm.validate(**fig1c))
+        mat.node_tree.links.new(node.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Surface"])
+        return mat
+
+    def osl_aniso():
+        from scratch_materials.osl import read_source
+
+        mat = materials.new_material("osl aniso GGX")
+        tree = mat.node_tree
+        node = osl_compile.script_node_from_source(tree, "aniso_ggx.osl", read_source("aniso_ggx.osl"))
+        node.inputs["Roughness"].default_value = 0.2
+        node.inputs["Anisotropy"].default_value = 0.8
+        node.inputs["Color"].default_value = (0.8, 0.8, 0.8) if len(node.inputs["Color"].default_value) == 3 \
+            else (0.8, 0.8, 0.8, 1.0)
+        tan = tree.nodes.new("ShaderNodeTangent")
+        tan.direction_type = "UV_MAP"
+        tree.links.new(tan.outputs["Tangent"], node.inputs["Tangent"])
+        tree.links.new(node.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
+        return mat
+
+    # (name, material factory, OSL shading system, scene)
+    setups = [("baseline: SVM aniso Glossy (MS GGX)", baseline, False, "frame"),
+              ("base only (Metallic, iron)", base_only, False, "frame"),
+              ("osl aniso GGX (osl/aniso_ggx.osl)", osl_aniso, True, "frame")]
+    counts = (4,) if a.quick else (4, 16)
+    for path, osl in (("osl", True), ("svm", False)):
+        setups += [(f"{path} {n} layers", scratch(n), osl, "frame") for n in counts]
+        for stage, bit in STAGES.items():
+            if path == "svm" and bit == 2:
+                continue  # the SVM twin has no footprint (binary α)
+            setups.append((f"{path} 4 layers - {stage}", scratch(4, cost_off=bit), osl, "frame"))
+        setups.append((f"{path} 4 layers, all culled (d = 1e-4)", scratch(4, density=1e-4), osl, "frame"))
+    setups += [("demo scene: baseline", baseline, False, "demo"),
+               ("demo scene: osl 4 layers", scratch(4), True, "demo"),
+               ("demo scene: svm 4 layers", scratch(4), False, "demo")]
+    if a.only:
+        keys = a.only.split(",")
+        setups = [s for s in setups if s[0].startswith("baseline") or s[0] == "demo scene: baseline"
+                  or any(k in s[0] for k in keys)]
+
+    def scene_for(make, osl, kind, spp):
+        scene = render.reset_scene()
+        mat = make()
+        if kind == "frame":
+            render.uniform_world(scene, 1.0)
+            render.add_sphere(scene, material=mat)
+            render.add_camera(scene, location=(0.0, -4.0, 0.0), target=(0.0, 0.0, 0.0), ortho_scale=1.3)
+            res = a.res
+        else:
+            render.studio_world(scene)
+            render.add_torus(scene, material=mat)
+            render.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)
+            render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
+            res = (int(a.res[0] * 1.5), a.res[1])
+        render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=osl)
+        return scene
+
+    for _name, make, osl, kind in setups:  # warm the table cache so that timings are render-only
+        scene_for(make, osl, kind, 1)
+    t_n = {s[0]: [] for s in setups}
+    t_1 = {s[0]: [] for s in setups}
+    load = []
+    w_n = {s[0]: [] for s in setups}
+
+    def timed(scene):
+        """(CPU seconds of this process's threads, wall seconds) of one render."""
+        c0 = time.process_time()
+        wall = render.render_array(scene, tmp, "cost")[1]
+        return time.process_time() - c0, wall
+
     for _ in range(a.repeats):
-        for name, make, osl in setups:
-            registered = name.endswith("registered")
-            if registered:
-                addon.register()
-            try:
-                for spp, store in ((a.spp, times), (1, times1)):
-                    scene = _scene(make, render, osl, spp, a.res)
-                    _img, seconds = render.render_array(scene, tmp, "cost")
-                    store[name].append(seconds)
-            finally:
-                if registered:
-                    addon.unregister()
-    med = {n: statistics.median(t) for n, t in times.items()}
-    # marginal cost per sample: (t(spp) - t(1)) / (spp - 1), free of the fixed scene-sync/OSL-JIT time
-    marg = {n: max(med[n] - statistics.median(times1[n]), 1e-9) / (a.spp - 1) for n in times}
-    b = "baseline (SVM aniso GGX)"
-    rows = [(n, med[n], med[n] / med[b], 1e3 * marg[n], marg[n] / marg[b], med[n] - (a.spp - 1) * marg[n])
-            for n in times]
-    notes = (f"{a.res[0]}x{a.res[1]} px, {a.spp} spp, CPU, median of {a.repeats} interleaved runs in one process. "
-             "'per-sample' = (t(spp) - t(1)) / (spp - 1): the cost that scales with samples, without the fixed "
-             "scene-sync / OSL-JIT time ('fixed s'). "
-             "Paper Table 2 (GPU, ms, brushed): 1/6/16/32 layers = 166/749/1850/3540 (sub-linear with culling).")
-    report("scratch_cost", ["setup", "median s", "ratio", "per-sample ms", "per-sample ratio", "fixed s"], rows, notes)
-    rows = [(n, t, r4) for n, t, r, _pm, r4, _f in rows]
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5.5, 3.5))
-    osl_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("osl") and n.endswith("layers")]
-    ax.plot([n for n, _ in osl_rows], [r for _, r in osl_rows], "o-", label="OSL (picked layer, table lobe)")
-    svm_rows = [(int(n.split()[1]), r) for n, _t, r in rows if n.startswith("svm") and n.endswith("layers")]
-    ax.plot([n for n, _ in svm_rows], [r for _, r in svm_rows], "s-", label="SVM node group (table lobe)")
-    ax.axhline(1.0, color="grey", lw=0.8)
-    ax.axhline(1.3, color="red", lw=0.8, ls="--", label="target at 4 layers")
-    ax.set_xscale("log", base=2)
-    ax.set_xlabel("layers")
-    ax.set_ylabel("render time / SVM aniso GGX")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out_path("scratch_cost.png"), dpi=120)
-    print(f"wrote {out_path('scratch_cost.png')}")
-    return 0
-
-
-def _skip_ratio(a, addon, render, baseline, tmp) -> int:
-    """A scene without scratch materials, rendered with the add-on registered vs not, in interleaved
-    pairs (median of ``--skip-repeats``): the add-on installs no render hooks, so the ratio is ~1."""
-    from bench._util import report
-
-    times = {"not registered": [], "registered": []}
-    for _ in range(a.skip_repeats):
-        for key in times:
-            if key == "registered":
-                addon.register()
-            try:
-                scene = _scene(baseline, render, False, a.spp, a.res)
-                times[key].append(render.render_array(scene, tmp, "skip")[1])
-            finally:
-                if key == "registered":
-                    addon.unregister()
-    med = {k: statistics.median(v) for k, v in times.items()}
-    rows = [(k, med[k], med[k] / med["not registered"], min(v), max(v)) for k, v in times.items()]
-    report("scratch_cost_skip", ["add-on", "median s", "ratio", "min s", "max s"], rows,
-           f"{a.res[0]}x{a.res[1]} px, {a.spp} spp, SVM anisotropic GGX only; {a.skip_repeats} interleaved pairs.")
+        for name, make, osl, kind in setups:
+            scene = scene_for(make, osl, kind, a.spp)
+            cpu, wall = timed(scene)
+            t_n[name].append(cpu)
+            w_n[name].append(wall)
+            scene.cycles.samples = 1
+            t_1[name].append(timed(scene)[0])
+        load.append(os.getloadavg()[0])
+    per = {n: max(statistics.median(t_n[n]) - statistics.median(t_1[n]), 1e-9) / (a.spp - 1) for n in t_n}
+    base = {"frame": per["baseline: SVM aniso Glossy (MS GGX)"], "demo": per["demo scene: baseline"]}
+    kind_of = {s[0]: s[3] for s in setups}
+    rows = []
+    for n in t_n:
+        ratio = per[n] / base[kind_of[n]]
+        ref = n.split(" - ")[0] if " - " in n else None
+        saved = "" if ref not in per else f"{(per[ref] - per[n]) / base['frame']:+.2f}x"
+        spread = (max(t_n[n]) - min(t_n[n])) / max(statistics.median(t_n[n]), 1e-9)
+        rows.append((n, 1e3 * per[n], ratio, saved, statistics.median(t_1[n]), statistics.median(w_n[n]),
+                     f"{100 * spread:.0f} %"))
+    notes = (f"Whole frame: {a.res[0]}x{a.res[1]} px orthographic view filled by a UV sphere (radius 1, 64x32), "
+             f"white world, CPU, {a.spp} spp, adaptive sampling off; per-sample = (t({a.spp}) - t(1)) / {a.spp - 1} "
+             "with t the CPU time of the render threads (process time: robust to the other jobs' load, which "
+             "inflates wall time), "
+             f"medians of {a.repeats} interleaved rounds in one process; 'ratio' against the baseline of the same "
+             "scene in the same run.  'stage cost' = per-sample time the stage adds (full minus stage off, "
+             "in baseline units).  'spread' = (max - min) / median of t(spp) (CPU).  Demo-scene rows: the old torus "
+             f"scene ({int(a.res[0] * 1.5)}x{a.res[1]}), the torus covers ~30 % of the frame: ratios diluted by "
+             f"background pixels.  Load average (1 min) during the rounds: {', '.join(f'{x:.1f}' for x in load)} "
+             f"on {os.cpu_count()} cores shared with other jobs.")
+    report("scratch_cost", ["setup", "per-sample CPU ms", "ratio", "stage cost", "t(1) CPU s", f"wall s ({a.spp} spp)",
+                            "spread"], rows, notes)
     return 0

@@ -101,81 +101,96 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
     rough, aniso = glossy_node_params(np.full_like(ay, alpha_x), np.minimum(ay, 1.0))  # Cycles clamps alpha to 1
     p = np.stack([np.asarray(entry["tilts"]), rough, aniso, np.asarray(entry["gamma"])], -1).astype(np.float32)
     jit = np.asarray(entry.get("jitters", np.zeros((S, K))), np.float32)[..., None]
-    return _data_image(f"{name}.W", np.concatenate([w, jit], -1)), _data_image(f"{name}.P", p)
+    return _data_image("Scratch lobes W", np.concatenate([w, jit], -1)), _data_image("Scratch lobes P", p)
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
-          name: str = "scratch") -> bpy.types.NodeSocket:
-    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4)."""
+          name: str = "scratch", cost_off: int = 0) -> bpy.types.NodeSocket:
+    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4).
+
+    ``cost_off`` (bench/scratch_cost.py only) switches stages off to time them, as the OSL ``COST_OFF``:
+    bit 1 the layer Voronoi (a grid of cell centres instead), 4 the CDF search (bin straight from h),
+    8 the closure set-up (untilted white lobe)."""
     g = _G(tree)
     geo = g.node("ShaderNodeNewGeometry")
     tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
     uvn = g.node("ShaderNodeUVMap")
     N = geo.outputs["Normal"]
     wo = geo.outputs["Incoming"]  # towards the viewer
-    # t = normalize(T - (T.N) N), b = N x t
-    T = tan.outputs["Tangent"]
-    t = g.vmath("NORMALIZE", g.vmath("SUBTRACT", T, g.vmath("SCALE", N, scale=g.vmath("DOT_PRODUCT", T, N))))
-    b = g.vmath("CROSS_PRODUCT", N, t)
-    # per-sample random numbers (P jitters per sample, as in the OSL path)
-    def noise(k):
+    # t: Cycles' Tangent node is already orthonormalised against the shading normal (cross(N, cross(T, N)))
+    t = tan.outputs["Tangent"]
+    table = "cdf" in lobe_data
+
+    # per-sample random numbers (P jitters per sample, as in the OSL path): the slice, layer and lobe
+    # numbers are the three channels of one hash; the aim inside a table bin a second hash
+    w_hash = g.vmath("DOT_PRODUCT", wo, (12.9898, 78.233, 37.719))
+
+    def noise(offset, channels=False):
         wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D")
         g._set(wn.inputs["Vector"], geo.outputs["Position"])
-        g._set(wn.inputs["W"], g.math("ADD", g.vmath("DOT_PRODUCT", wo, k), 17.0 * k[0]))
-        return wn.outputs["Value"]
+        g._set(wn.inputs["W"], g.math("ADD", w_hash, offset) if offset else w_hash)
+        return g.separate(wn.outputs["Color"]) if channels else wn.outputs["Value"]
 
-    h_slice, h_layer = noise((12.9898, 78.233, 37.719)), noise((93.989, 67.345, 24.113))
+    h_slice, h_layer, h_lobe = noise(0.0, channels=True)
+    h_frac = noise(17.0) if table else None
     # tilt jitter (stochastic box lobes): one offset in [-1, 1) per sample, scaled per lobe
-    jittered = "cdf" not in lobe_data and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
-                                              for e in (lobe_data["m"], lobe_data["0"]))
-    h_jit = g.math("SUBTRACT", g.math("MULTIPLY", noise((57.193, 29.917, 64.433)), 2.0), 1.0) if jittered else None
+    jittered = not table and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
+                                 for e in (lobe_data["m"], lobe_data["0"]))
+    h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
     if layers is None:
-        theta_sel = 0.0
+        theta_sel = None
         alpha_sum = 1.0
     else:
         uv = uvn.outputs["UV"]
-        uvs = g.separate(uv)
-        alphas, acc, accs = [], None, []
+        acc, accs = None, []
         for k in range(layers.n_layers):
-            c, s_ = math.cos(theta_k[k]), math.sin(theta_k[k])
-            yx = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], c), g.math("MULTIPLY", uvs[1], s_)),
-                                        1.0 / layers.length), float(xi_k[k][0]))
-            yy = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], -s_), g.math("MULTIPLY", uvs[1], c)),
-                                        1.0 / layers.width), float(xi_k[k][1]))
-            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
-            vor.inputs["Scale"].default_value = 1.0
-            vor.inputs["Randomness"].default_value = 1.0
-            g._set(vor.inputs["Vector"], g.combine(yx, yy))
-            a = g.math("LESS_THAN", vor.outputs["Distance"], float(layers.density) + 1e-7)  # [F1]_d, eq. 7
-            alphas.append(a)
+            y = layer_coordinates(g, uv, theta_k[k], layers.length, layers.width, xi_k[k])
+            if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
+                dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
+            else:
+                vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+                vor.inputs["Scale"].default_value = 1.0
+                vor.inputs["Randomness"].default_value = 1.0
+                g._set(vor.inputs["Vector"], y)
+                dist = vor.outputs["Distance"]
+            a = g.math("LESS_THAN", dist, float(layers.density) + 1e-7)  # [F1]_d, eq. 7
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
         alpha_sum = acc
+        # layer k is picked when acc_{k-1} <= target < acc_k (probability α_k / ᾱ): from the last layer
+        # back, Θ = Θ_k wherever target < acc_k (one Less Than and one Mix per layer)
         target = g.math("MULTIPLY", h_layer, alpha_sum)
-        theta_sel, prev = None, None
-        for k, acc_k in enumerate(accs):  # layer k is picked when acc_{k-1} <= target < acc_k
-            below = g.math("LESS_THAN", target, acc_k)
-            sel = below if prev is None else g.math("SUBTRACT", below, prev)
-            prev = below
-            term = g.math("MULTIPLY", sel, float(theta_k[k]))
-            theta_sel = term if theta_sel is None else g.math("ADD", theta_sel, term)
-    # scratch frame of the picked layer
-    u = g.vmath("ADD", g.vmath("SCALE", t, scale=g.math("COSINE", theta_sel)), g.vmath("SCALE", b, scale=g.math("SINE", theta_sel)))
-    v = g.vmath("CROSS_PRODUCT", N, u)
-    theta_o = g.math("ARCSINE", g.math("MINIMUM", g.math("MAXIMUM", g.vmath("DOT_PRODUCT", wo, u), -1.0), 1.0))
-    phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
-    table = "cdf" in lobe_data
-    if table:
-        scratch = _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, noise((39.346, 11.135, 83.155)), tint)
+        theta_sel = float(theta_k[-1])
+        for k in range(layers.n_layers - 2, -1, -1):
+            mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
+            g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
+            g._set(mix.inputs[2], theta_sel)
+            g._set(mix.inputs[3], float(theta_k[k]))
+            theta_sel = mix.outputs[0]
+    # scratch frame of the picked layer: u = cos Θ t + sin Θ (N x t) = t rotated about N by Θ, v = N x u
+    if theta_sel is None:
+        u = t
     else:
-        x = g.math("MULTIPLY", g.math("ABSOLUTE", theta_o), 2.0 / _PI)
+        rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
+        g._set(rot.inputs["Vector"], t)
+        g._set(rot.inputs["Axis"], N)
+        g._set(rot.inputs["Angle"], theta_sel)
+        u = rot.outputs["Vector"]
+    v = g.vmath("CROSS_PRODUCT", N, u)
+    # φo = atan2(wo.v, wo.N)
+    phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
+    if table:
+        scratch = _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h_lobe, h_frac, tint, cost_off)
+    else:
+        # θo = asin(wo.u) (Cycles' arcsine clamps its argument), x = 2|θo|/π
+        x = g.math("MULTIPLY", g.math("ABSOLUTE", g.math("ARCSINE", g.vmath("DOT_PRODUCT", wo, u))), 2.0 / _PI)
         S = lobe_data["m"]["weights"].shape[0]
-        xs = g.math("SUBTRACT", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), S / _PI), 0.5)
-        s0 = g.math("FLOOR", xs)
-        s = g.math("ADD", s0, g.math("LESS_THAN", h_slice, g.math("SUBTRACT", xs, s0)))
+        # stochastic linear interpolation between the two nearest slices: s = floor(xs + h) is s0 + 1 with
+        # probability xs - s0 (xs = (φo + π/2) S / π - 1/2)
+        s = g.math("FLOOR", g.math("ADD", g.math("MULTIPLY_ADD", phi_o, S / _PI, S / 2 - 0.5), h_slice))
         s = g.math("MINIMUM", g.math("MAXIMUM", s, 0.0), S - 1.0)
-        row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
+        row = g.math("MULTIPLY_ADD", s, 1.0 / S, 0.5 / S)
         scratch = _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint)
     if layers is None:
         return scratch
@@ -186,6 +201,20 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
     return mixs.outputs[0]
+
+
+def layer_coordinates(g, uv, theta: float, length: float, width: float, xi) -> bpy.types.NodeSocket:
+    """Eq. 7 in one Mapping node: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
+    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]].  Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so
+    r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and L = -R_z(Θ) S ξ."""
+    c, s_ = math.cos(theta), math.sin(theta)
+    sx, sy = float(length) * float(xi[0]), float(width) * float(xi[1])
+    m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
+    g._set(m.inputs["Vector"], uv)
+    m.inputs["Location"].default_value = (-(c * sx - s_ * sy), -(s_ * sx + c * sy), 0.0)
+    m.inputs["Rotation"].default_value = (0.0, 0.0, float(theta))
+    m.inputs["Scale"].default_value = (float(length), float(width), 1.0)
+    return m.outputs["Vector"]
 
 
 def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
@@ -230,9 +259,18 @@ def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
 
 
 def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
-    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom)."""
+    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom).
+
+    Named ``<img_name> <content hash>`` and shared: materials with the same tables use one image (one packed
+    copy in the .blend), and rebuilding a material never rewrites an image another material uses."""
+    import hashlib
+
+    data = np.ascontiguousarray(arr, np.float32)
     rows, cols = arr.shape[:2]
+    img_name = f"{img_name} {hashlib.sha1(data.tobytes() + repr(data.shape).encode()).hexdigest()[:12]}"
     img = bpy.data.images.get(img_name)
+    if img is not None and tuple(img.size) == (cols, rows) and img.packed_file is not None:
+        return img
     if img is not None and tuple(img.size) != (cols, rows):
         bpy.data.images.remove(img)
         img = None
@@ -240,7 +278,7 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
         img = bpy.data.images.new(img_name, width=cols, height=rows, alpha=True, float_buffer=True, is_data=True)
     img.colorspace_settings.is_data = True
     img.alpha_mode = "CHANNEL_PACKED"
-    img.pixels.foreach_set(np.ascontiguousarray(arr, np.float32).reshape(-1))
+    img.pixels.foreach_set(data.reshape(-1))
     img.file_format = "OPEN_EXR"
     img.pack()
     return img
@@ -250,11 +288,15 @@ def table_images(name: str, lobe_data: dict) -> dict:
     """Packed Non-Color float images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``):
 
     - ``N`` [1, G]: per uniform φo cell, R = its node interval k, G = φ_k, B = φ_k+1 (radians);
-    - ``C`` [S, M+1] (rows = φo nodes): R = the bin-picking CDF, G = its total P, B = the aim code of the bin
-      (exit centroid + 2 for even bounces; first M columns), A = the node's φ;
+    - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j, G = alias_j;
+    - ``C`` [S, M] (rows = φo nodes): G = the node's total P, B = the aim code of the bin (exit centroid + 2 for
+      even bounces), A = the node's φ;
     - lossy only: ``Y`` [S, K M / y_group] RGB = the θo coefficients (column g K + k for bin group g,
       function k) and ``B`` [K, NT] RGB = the θo basis (read with Linear interpolation along v).
+    Images are shared by content (``_data_image``).
     """
+    from ..precompute.scratch.lobe_table import alias_table
+
     cdf = np.asarray(lobe_data["cdf"], np.float64)
     S, M1 = cdf.shape
     M = M1 - 1
@@ -262,12 +304,17 @@ def table_images(name: str, lobe_data: dict) -> dict:
     cell = np.asarray(lobe_data["cell"], np.int64)
     n = np.zeros((1, cell.size, 4))
     n[0, :, 0], n[0, :, 1], n[0, :, 2] = cell, phi[cell], phi[cell + 1]
-    c = np.zeros((S, M1, 4))
-    c[..., 0] = cdf
+    prob, alias = lobe_data.get("alias_prob"), lobe_data.get("alias_idx")
+    if prob is None or alias is None:
+        prob, alias = alias_table(cdf)
+    a = np.zeros((S, M, 4))
+    a[..., 0], a[..., 1] = prob, alias
+    c = np.zeros((S, M, 4))
     c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
-    c[:, :M, 2] = lobe_data["cen"]
+    c[..., 2] = lobe_data["cen"]
     c[..., 3] = phi[:, None]
-    out = {"N": _data_image(f"{name}.N", n), "C": _data_image(f"{name}.C", c)}
+    out = {"N": _data_image("Scratch table N", n), "A": _data_image("Scratch table A", a),
+           "C": _data_image("Scratch table C", c)}
     if lobe_data.get("basis") is not None:
         coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
         y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
@@ -275,76 +322,75 @@ def table_images(name: str, lobe_data: dict) -> dict:
         basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
         b = np.zeros(basis.shape[:2] + (4,))
         b[..., :3] = basis
-        out.update(Y=_data_image(f"{name}.Y", y), B=_data_image(f"{name}.Btheta", b))
+        out.update(Y=_data_image("Scratch table Y", y), B=_data_image("Scratch table Btheta", b))
     return out
 
 
-def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, tint):
+def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint, cost_off=0):
     """One tabulated-tilt lobe, as the OSL ``table_lobes`` with TK = 1 (``precompute.scratch.lobes.table_lobes``):
-    the φo node picked between the two around φo (a cell image gives the interval), a binary search of h in
-    the node's CDF (log2 M image lookups), the aim at the bin's exit centroid moved to the actual view
-    (odd bounces mirror-like, even retro-like), a narrow GGX Glossy tilted halfway between φo and the
-    exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v), v = 1 - sqrt(cos θo))."""
+    the φo node picked between the two around φo (a cell image gives the interval), the bin from the node's
+    alias table (one lookup, probability p_b / P), the aim at the bin's exit centroid moved to the actual view
+    (odd bounces mirror-like, even retro-like; the spread inside the bin drawn with ``h_frac``), a narrow GGX
+    Glossy tilted halfway between φo and the exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v),
+    v = 1 - sqrt(cos θo)).  ``cost_off`` bits 4 / 8 as in ``build``."""
     imgs = table_images(name, lobe_data)
     cdf = lobe_data["cdf"]
     S, M = cdf.shape[0], cdf.shape[1] - 1
-    if M & (M - 1):
-        raise ValueError(f"table lobes need a power-of-two table size M; got {M}")
     G = int(np.asarray(lobe_data["cell"]).size)
     lossless = lobe_data.get("basis") is None
 
     def fetch(img, col, n_cols, row, interpolation="Closest"):
+        # lookup of column col (an integer, or a continuous coordinate for Linear), row ``row`` in [0, 1]
         tex = g.node("ShaderNodeTexImage", image=img, interpolation=interpolation, extension="EXTEND")
-        g._set(tex.inputs["Vector"], g.combine(g.math("DIVIDE", g.math("ADD", col, 0.5), float(n_cols)), row))
+        g._set(tex.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", col, 1.0 / n_cols, 0.5 / n_cols), row))
         return tex
 
-    # node interval of phi_o, then one of its two nodes with the linear weight
-    cell = g.math("MINIMUM", g.math("MAXIMUM", g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", phi_o, _PI / 2), G / _PI)),
-                                     0.0), G - 1.0)
+    # node interval of phi_o (EXTEND clamps the cell), then one of its two nodes with the linear weight
+    cell = g.math("FLOOR", g.math("MULTIPLY_ADD", phi_o, G / _PI, G / 2))
     k, pa, pb = g.separate(fetch(imgs["N"], cell, G, 0.5).outputs["Color"])
     up = g.math("LESS_THAN", g.math("MULTIPLY", h_slice, g.math("SUBTRACT", pb, pa)), g.math("SUBTRACT", phi_o, pa))
-    s = g.math("ADD", k, up)
-    row = g.math("DIVIDE", g.math("ADD", s, 0.5), float(S))
-    lo, hi = 0.0, float(M)
-    for _ in range(int(math.log2(M))):  # hi - lo halves every step: M = 2^L
-        mid = g.math("FLOOR", g.math("MULTIPLY", g.math("ADD", lo, hi), 0.5))
-        # cdf[mid] <= h (the R channel: a Color socket into a Math node would be converted to grey)
-        go = g.math("LESS_THAN", g.separate(fetch(imgs["C"], mid, M + 1, row).outputs["Color"])[0], g.math("ADD", h, 1e-12))
-        lo = g.math("ADD", lo, g.math("MULTIPLY", go, g.math("SUBTRACT", mid, lo)))
-        hi = g.math("ADD", hi, g.math("MULTIPLY", g.math("SUBTRACT", 1.0, go), g.math("SUBTRACT", mid, hi)))
-    c0 = fetch(imgs["C"], lo, M + 1, row)
-    c1 = fetch(imgs["C"], g.math("ADD", lo, 1.0), M + 1, row)
-    c0r, P, code = g.separate(c0.outputs["Color"])
+    row = g.math("MULTIPLY_ADD", g.math("ADD", k, up), 1.0 / S, 0.5 / S)
+    uh = g.math("MULTIPLY", h, float(M))
+    j = g.math("FLOOR", uh)
+    if cost_off & 4:  # bench: no alias lookup (the bin straight from h)
+        lo = j
+    else:
+        prob, alias, _ = g.separate(fetch(imgs["A"], j, M, row).outputs["Color"])
+        take = g.math("LESS_THAN", prob, g.math("SUBTRACT", uh, j))     # u - j >= prob_j: the alias bin
+        lo = g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", alias, j), j)
+    c0 = fetch(imgs["C"], lo, M, row)
+    _, P, code = g.separate(c0.outputs["Color"])
     phi_s = c0.outputs["Alpha"]
-    c1r = g.separate(c1.outputs["Color"])[0]
-    fr = g.math("MINIMUM", g.math("MAXIMUM", g.math("DIVIDE", g.math("SUBTRACT", h, c0r),
-                                                    g.math("MAXIMUM", g.math("SUBTRACT", c1r, c0r), 1e-12)), 0.0), 1.0)
+    fr = h_frac
+    # aim = (lo + ce + (2 fr - 1) hw) π / M - π/2, ce = code (- 2 for even bounces), hw = min(ce, 1 - ce)
     even = g.math("GREATER_THAN", code, 1.5)
-    ce = g.math("SUBTRACT", code, g.math("MULTIPLY", even, 2.0))
+    ce = g.math("MULTIPLY_ADD", even, -2.0, code)
     hw = g.math("MINIMUM", ce, g.math("SUBTRACT", 1.0, ce))
-    aim = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("ADD", lo, ce),
-                                                  g.math("MULTIPLY", g.math("SUBTRACT", g.math("MULTIPLY", fr, 2.0), 1.0), hw)),
-                               _PI / M), -_PI / 2)
-    # exit: aim + (phi_s - phi_o) for odd bounces, aim - (phi_s - phi_o) for even ones
-    d = g.math("MULTIPLY", g.math("SUBTRACT", phi_s, phi_o), g.math("SUBTRACT", 1.0, g.math("MULTIPLY", even, 2.0)))
+    aim = g.math("MULTIPLY_ADD", g.math("ADD", g.math("ADD", lo, ce), g.math("MULTIPLY", g.math("MULTIPLY_ADD", fr, 2.0, -1.0), hw)),
+                 _PI / M, -_PI / 2)
+    # exit: aim + (phi_s - phi_o) for odd bounces, aim - (phi_s - phi_o) for even ones; tilt = (exit + φo) / 2
+    d = g.math("MULTIPLY", g.math("SUBTRACT", phi_s, phi_o), g.math("MULTIPLY_ADD", even, -2.0, 1.0))
     tilt = g.math("MULTIPLY", g.math("ADD", g.math("ADD", aim, d), phi_o), 0.5)
-    n_l = g.vmath("NORMALIZE", g.vmath("ADD", g.vmath("SCALE", N, scale=g.math("COSINE", tilt)),
-                                      g.vmath("SCALE", v, scale=g.math("SINE", tilt))))
+    # the lobe normal cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
+    rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE", invert=True)
+    g._set(rot.inputs["Vector"], N)
+    g._set(rot.inputs["Axis"], u)
+    g._set(rot.inputs["Angle"], tilt)
+    n_l = rot.outputs["Vector"]
     if lossless:
-        colour = g.combine(P, P, P)
+        colour = P
     else:
         K, NT = lobe_data["basis"].shape[:2]
         yg = int(lobe_data.get("y_group", 1))
         n_cols = lobe_data["coef"].shape[1] * K
         cu = g.vmath("DOT_PRODUCT", wo, u)
-        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("SUBTRACT", 1.0, g.math("MULTIPLY", cu, cu)), 0.0))
-        vt = g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t))
-        bcol = g.math("MULTIPLY", vt, NT - 1.0)   # linear interpolation between the NT basis samples
+        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("MULTIPLY_ADD", cu, g.math("MULTIPLY", cu, -1.0), 1.0), 0.0))
+        bcol = g.math("MULTIPLY", g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t)), NT - 1.0)  # linear between samples
         grp = g.math("MULTIPLY", g.math("FLOOR", g.math("DIVIDE", g.math("ADD", lo, 0.5), float(yg))), float(K))
         Y = None
-        for j in range(K):
-            coef = fetch(imgs["Y"], g.math("ADD", grp, float(j)), n_cols, row).outputs["Color"]
-            basis = fetch(imgs["B"], bcol, NT, (j + 0.5) / K, "Linear").outputs["Color"]
+        for jj in range(K):
+            coef = fetch(imgs["Y"], g.math("ADD", grp, float(jj)), n_cols, row).outputs["Color"]
+            basis = fetch(imgs["B"], bcol, NT, (jj + 0.5) / K, "Linear").outputs["Color"]
             term = g.vmath("MULTIPLY", coef, basis)
             Y = term if Y is None else g.vmath("ADD", Y, term)
         Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
@@ -355,10 +401,31 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, tint):
     ax = float(lobe_data["alpha_x"])
     ay = max(float(lobe_data["alpha_y"]), ax)
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
-    g._set(glossy.inputs["Color"], colour)
     rough, aniso = glossy_node_params(ax, min(ay, 1.0))
-    g._set(glossy.inputs["Roughness"], rough)
     g._set(glossy.inputs["Anisotropy"], aniso)
-    g._set(glossy.inputs["Normal"], n_l)
     g._set(glossy.inputs["Tangent"], u)
+    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and the node kept alive)
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, phi_s), 1e-9, 1.0),
+                                                  rough))
+        return glossy.outputs[0]
+    g._set(glossy.inputs["Color"], colour)
+    g._set(glossy.inputs["Roughness"], rough)
+    g._set(glossy.inputs["Normal"], n_l)
+    return glossy.outputs[0]
+    if tuple(tint) != (1.0, 1.0, 1.0):
+        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+    # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
+    ax = float(lobe_data["alpha_x"])
+    ay = max(float(lobe_data["alpha_y"]), ax)
+    glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+    rough, aniso = glossy_node_params(ax, min(ay, 1.0))
+    g._set(glossy.inputs["Anisotropy"], aniso)
+    g._set(glossy.inputs["Tangent"], u)
+    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and fr kept alive)
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, fr), 1e-9, 1.0),
+                                                  rough))
+        return glossy.outputs[0]
+    g._set(glossy.inputs["Color"], colour)
+    g._set(glossy.inputs["Roughness"], rough)
+    g._set(glossy.inputs["Normal"], n_l)
     return glossy.outputs[0]

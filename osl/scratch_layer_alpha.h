@@ -4,6 +4,11 @@
 // Needs: parameters UV, Length, Width, Density, output Alpha; tables THETA_K[NL], XI_K[2 NL], COV,
 // COV_DMAX; NL and ALPHA_CULL defined; disk_overlap (scratch_layers.h) and Cycles' node_voronoi.h.
 // Declares: alpha[NL], alpha_sum (= sum_k alpha_k, also written to Alpha).
+// COST_OFF (bench/scratch_cost.py only; default 0) switches stages off to time them: bit 1 = layer
+// Voronoi (feature points at the cell centres, no hash), bit 2 = footprint α (binary [F1 <= d] at the point).
+#ifndef COST_OFF
+#define COST_OFF 0
+#endif
 
     // UV and its footprint. Cycles' ray differentials are isotropic (no foreshortening), so the
     // footprint is stretched by 1/cos(view) along the view direction projected into the surface.
@@ -28,6 +33,21 @@
     float inv_l = 1.0 / max(Length, 1e-9), inv_w = 1.0 / max(Width, 1e-9);
     float alpha[NL];
     float alpha_sum = 0.0;
+    // Far field for every layer at once: a layer's footprint spread (below) is at least
+    // r_uv max(1/l, 1/w) / sqrt(2) (the ellipse's orthogonal semi-axes, both >= r_uv, project onto the
+    // stretched axis with squares summing to >= r_uv^2), so past 0.8 every layer's fade is 1 and
+    // α_k = c̄(d): no per-layer work, and no scratch work at all when c̄(d) is culled.
+#if COST_OFF & 2
+    int far_all = 0;
+#else
+    int far_all = r_uv * max(inv_l, inv_w) >= 0.8 * M_SQRT2;
+#endif
+    if (far_all) {
+        float a = (cbar < ALPHA_CULL) ? 0.0 : cbar;
+        for (int k = 0; k < NL; k++)
+            alpha[k] = a;
+        alpha_sum = NL * a;
+    } else
     for (int k = 0; k < NL; k++) {
         float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
         // y = diag(l, w)^-1 R(Θk) (u, v) + ξk  (eq. 7, rotation first: see scratch_svbrdf.osl)
@@ -36,8 +56,12 @@
         // footprint semi-axes in noise space
         float e1x = (ck * a1u + sk * a1v) * inv_l, e1y = (-sk * a1u + ck * a1v) * inv_w;
         float e2x = (ck * a2u + sk * a2v) * inv_l, e2y = (-sk * a2u + ck * a2v) * inv_w;
+#if COST_OFF & 2
+        float spread = 0.0, fade = 0.0;  // bench: no footprint
+#else
         float spread = max(hypot(e1x, e1y), hypot(e2x, e2y));
         float fade = smoothstep(0.2, 0.8, spread);  // footprint spans cells: converge to c̄(d)
+#endif
         float a = cbar;
         if (fade < 1.0) {
             // α over a disk footprint of radius R = spread: the disk-disk overlap with each
@@ -59,14 +83,20 @@
                 for (int i = -1; i <= 1; i++) {
                     float bx = (i < 0) ? fx : ((i > 0) ? 1.0 - fx : 0.0);
                     if (bx * bx + by * by >= reach * reach) continue;
-#if VORONOI_INT2  // Blender >= 5.0 hashes integer cells (node_voronoi.h)
+#if COST_OFF & 1  // bench: no Voronoi hash (feature points at the cell centres)
+                    vector2 fp = cell_f + vector2(i + 0.5, j + 0.5);
+#elif VORONOI_INT2  // Blender >= 5.0 hashes integer cells (node_voronoi.h)
                     int2 off = {i, j};
                     vector2 fp = cell_f + int2_to_vec2(off) + hash_int2_to_vector2(cell + off);
 #else             // Blender 4.2-4.5 hash float cell coordinates
                     vector2 off = vector2(i, j);
                     vector2 fp = cell_f + off + hash_vector2_to_vector2(cell_f + off);
 #endif
+#if COST_OFF & 2
+                    if (distance(fp, y) <= d) miss = 0.0;
+#else
                     miss *= 1.0 - disk_overlap(d, R, distance(fp, y));
+#endif
                 }
             }
             a = mix(1.0 - miss, cbar, fade);

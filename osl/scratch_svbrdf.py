@@ -103,6 +103,8 @@ class ShaderSpec:
     name: str = "scratch_svbrdf"
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
     voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
+    cost_off: int = 0                       # bench/scratch_cost.py only: COST_OFF stage bits (1 Voronoi, 2 footprint
+                                            # α, 4 CDF search, 8 closure set-up; table lobes), 0 in every material
 
 
 @dataclass
@@ -123,18 +125,30 @@ class TableLobes:
     alpha_y: float
     y_group: int = 1
     strata: int = 1
+    alias_prob: np.ndarray | None = None    # [S, M] alias table of the bins (lobe_table.alias_table); None: from cdf
+    alias_idx: np.ndarray | None = None
 
     @classmethod
     def from_tables(cls, t: dict, strata: int = 1) -> "TableLobes":
         """From ``precompute.scratch.lobes.table_lobes``."""
         opt = lambda k: None if t.get(k) is None else np.asarray(t[k], float)  # noqa: E731
+        ap, ai = t.get("alias_prob"), t.get("alias_idx")
         return cls(np.asarray(t["phi"], float), np.asarray(t["cell"], np.int64), np.asarray(t["cdf"], float),
                    np.asarray(t["total"], float), np.asarray(t["cen"], float), opt("coef"), opt("basis"),
-                   float(t["alpha_y"]), int(t.get("y_group", 1)), int(strata))
+                   float(t["alpha_y"]), int(t.get("y_group", 1)), int(strata),
+                   None if ap is None else np.asarray(ap, float), None if ai is None else np.asarray(ai, int))
 
     @property
     def lossless(self) -> bool:
         return self.basis is None
+
+    def alias(self) -> tuple[np.ndarray, np.ndarray]:
+        """(prob [S, M], alias [S, M]): the alias table the shader samples bins with
+        (``precompute.scratch.lobe_table.alias_table`` of ``cdf``)."""
+        if self.alias_prob is None or self.alias_idx is None:
+            from ..precompute.scratch.lobe_table import alias_table
+            return alias_table(self.cdf)
+        return self.alias_prob, self.alias_idx
 
     @property
     def n_slices(self) -> int:
@@ -146,7 +160,9 @@ class TableLobes:
 
 
 def _table_arrays(t: TableLobes) -> str:
-    out = (const_array("TB_PHI", t.phi) + const_array("TB_CELL", t.cell, "int") + const_array("TB_CDF", t.cdf.ravel())
+    prob, alias = t.alias()
+    out = (const_array("TB_PHI", t.phi) + const_array("TB_CELL", t.cell, "int")
+           + const_array("TB_AP", prob.ravel()) + const_array("TB_AI", alias.ravel(), "int")
            + const_array("TB_TOT", t.total) + const_array("TB_CEN", t.cen.ravel()))
     if not t.lossless:
         out += const_array("TB_Y", t.coef.ravel()) + const_array("TB_B", t.basis.ravel())
@@ -212,6 +228,8 @@ def generate(spec: ShaderSpec) -> str:
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))
         tables.append(_layer_arrays(spec))
     flags.update(ALPHA_CULL=ALPHA_CULL, VORONOI_INT2=bool(spec.voronoi_int2))
+    if spec.cost_off:
+        flags["COST_OFF"] = int(spec.cost_off)
     return specialise("scratch_svbrdf.osl", flags, {"scratch_svbrdf_tables.h": "\n".join(tables)},
                       "osl/scratch_svbrdf.py")
 

@@ -23,10 +23,10 @@
             int q0 = 3 * (j * NT + it);
             yb[j] = mix(color(TB_B[q0], TB_B[q0 + 1], TB_B[q0 + 2]), color(TB_B[q0 + 3], TB_B[q0 + 4], TB_B[q0 + 5]), ft);
         }
-        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_CEN, TB_PHI, TB_Y, yb, s, phi_o, h_lobe, u, v, n);
+        closure color rho = table_lobes(TB_AP, TB_AI, TB_TOT, TB_CEN, TB_PHI, TB_Y, yb, s, phi_o, h_lobe, u, v, n);
 #else
         color yb[1] = {color(1.0)};
-        closure color rho = table_lobes(TB_CDF, TB_TOT, TB_CEN, TB_PHI, TB_PHI, yb, s, phi_o, h_lobe, u, v, n);
+        closure color rho = table_lobes(TB_AP, TB_AI, TB_TOT, TB_CEN, TB_PHI, TB_PHI, yb, s, phi_o, h_lobe, u, v, n);
 #endif
 #else
         float x = 2.0 * abs(theta_o) / M_PI;

@@ -6,7 +6,8 @@
 #if LOBE_TABLE
     float TB_PHI[3] = {-1.57079633, 0, 1.57079633};
     int TB_CELL[2] = {0, 1};
-    float TB_CDF[9] = {0, 0.5, 1, 0, 0.5, 1, 0, 0.5, 1};
+    float TB_AP[6] = {1, 1, 1, 1, 1, 1};
+    int TB_AI[6] = {0, 1, 0, 1, 0, 1};
     float TB_TOT[3] = {0.9, 0.9, 0.9};
     float TB_CEN[6] = {0.5, 0.5, 0.5, 0.5, 0.5, 0.5};
 #if KY

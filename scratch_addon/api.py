@@ -75,14 +75,27 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
     return material
 
 
-def demo_scene(preset: str = "demo", **overrides) -> bpy.types.Scene:
-    """Reset the file and build the demo: a curved UV-mapped object with the preset's material
-    under a studio environment plus a small area light."""
+#: Scene layouts of ``demo_scene``.
+LAYOUTS = ("torus", "highlights")
+
+
+def demo_scene(preset: str = "demo", layout: str = "torus", **overrides) -> bpy.types.Scene:
+    """Reset the file and build a demo scene with the preset's material.
+
+    ``layout`` "torus": a curved UV-mapped object under a studio environment plus a small area light;
+    "highlights" (the README image): a floor plane receding from a low camera under three small point
+    lights whose highlights sit near, mid-distance and far, so one image shows lit scratches streaking
+    around a highlight individually near and merging into a sheen far away."""
     presets.get(preset)  # validate before wiping the file
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}; got {layout!r}")
     scene = _render.reset_scene()
     material = make_material(preset, **overrides)
     if presets.get(preset).kind == "scratch":
         scene.cycles.shading_system = True
+    if layout == "highlights":
+        _render.highlights_scene(scene, material)
+        return scene
     _render.studio_world(scene, strength=1.0)
     _render.add_torus(scene, material=material)
     _render.add_light(scene, "AREA", location=(2.5, -2.0, 3.0), energy=150.0, size=0.25)

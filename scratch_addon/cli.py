@@ -47,6 +47,9 @@ def _parser(preset_names: list[str]) -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=32, help="samples per pixel (1..65536)")
     p.add_argument("--res", type=int, nargs=2, default=(480, 320), metavar=("W", "H"), help="resolution in pixels")
     p.add_argument("--seed", type=int, default=0, help="Cycles sampling seed")
+    p.add_argument("--layout", default="torus", choices=["torus", "highlights"],
+                   help="scene: torus under a studio world, or highlights (a floor under three small point "
+                        "lights, near / mid / far: the README demo)")
     p.add_argument("--osl", action="store_true", help="use the OSL shading backend")
     p.add_argument("--list-presets", action="store_true", help="print preset names and exit")
     return p
@@ -67,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     if os.path.splitext(args.out)[1].lower() not in (".png", ".exr"):
         parser.error(f"--out must end in .png or .exr, got {args.out!r}")
     try:
-        api.demo_scene(args.preset)
+        api.demo_scene(args.preset, layout=args.layout)
         seconds = api.render(args.out, samples=args.samples, res=tuple(args.res), seed=args.seed, osl=args.osl)
     except ValueError as exc:
         print(f"{parser.prog}: error: {exc}", file=sys.stderr)

@@ -101,8 +101,9 @@ def script_node_from_source(tree: bpy.types.NodeTree, name: str, source: str) ->
     """Create an INTERNAL script node whose code lives in a Text datablock (saved in the .blend)."""
     ensure_oslquery()  # assigning the script may trigger Cycles' own compile, which imports oslquery
     text = bpy.data.texts.get(name) or bpy.data.texts.new(name)
-    text.clear()
-    text.write(source)
+    if text.as_string() != source:  # a shared text (same name, same source) is left as it is
+        text.clear()
+        text.write(source)
     node = tree.nodes.new("ShaderNodeScript")
     node.mode = "INTERNAL"
     node.script = text

@@ -58,9 +58,11 @@ _add(Preset("fig14a_shallow", "scratch", "Fig. 14a / Table 1: nearly flat profil
             dict(profile=("quartic", 0.05), fresnel="iron", layers=_layers(4, 7, 0.02, 7e-4, 0.5), base="mirror")))
 _add(Preset("fig14b_steep", "scratch", "Fig. 14b / Table 1: steep profile, scratched",
             dict(profile=("quartic", 0.6), fresnel="iron", layers=_layers(16, 360, 0.02, 1e-5, 0.2), base="mirror")))
-#: The README demo: the paper's Fig. 14a row (shallow profile, brushed) on the demo torus.
-_add(Preset("demo", "scratch", "README demo: the Fig. 14a / Table 1 preset (shallow brushed iron)",
-            dict(PRESETS["fig14a_shallow"].params)))
+#: The README demo (``make demo``, layout "highlights"): Fig. 1d's 32 layers of all orientations on iron, with a
+#: shallow profile and a higher density, so that around a small light's highlight the lit scratches read as arcs of
+#: glints near and merge into a sheen far away (Fig. 1d's deeper quartic 0.3 scatters glints over the whole floor).
+_add(Preset("demo", "scratch", "README demo: Fig. 1d's 32 layers, shallow quartic 0.08, density 0.2 (iron)",
+            dict(profile=("quartic", 0.08), fresnel="iron", layers=_layers(32, 360, 0.3, 3e-4, 0.2), base="mirror")))
 
 
 def names() -> list[str]:

@@ -146,14 +146,40 @@ def add_light(scene, kind: str = "AREA", location=(2.0, -2.0, 3.0), energy: floa
     return obj
 
 
-def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane"):
-    """A UV-mapped plane in z = 0 (U along +x)."""
+def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane", uv_size: float | None = None,
+              location=(0.0, 0.0, 0.0)):
+    """A UV-mapped plane in z = 0 (U along +x): UVs span [0, 1] over the plane, or with ``uv_size`` one UV
+    unit is ``uv_size`` metres (scratch layers live in UV space: this sets their size in the world)."""
     import bmesh
 
     mesh = bpy.data.meshes.new(name)
     bm = bmesh.new()
-    bm.loops.layers.uv.new("UVMap")  # create_grid fills UVs only into an existing layer
+    uv_layer = bm.loops.layers.uv.new("UVMap")  # create_grid fills UVs only into an existing layer
     bmesh.ops.create_grid(bm, x_segments=1, y_segments=1, size=size / 2, calc_uvs=True)
+    if uv_size is not None:
+        for face in bm.faces:
+            for loop in face.loops:
+                loop[uv_layer].uv = (loop.vert.co.x / uv_size, loop.vert.co.y / uv_size)
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    scene.collection.objects.link(obj)
+    obj.location = location
+    if material is not None:
+        mesh.materials.append(material)
+    return obj
+
+
+def add_sphere(scene, material=None, radius: float = 1.0, name: str = "Sphere", segments: int = 64, rings: int = 32):
+    """A UV-mapped smooth UV sphere centred at the origin (U around z, V from pole to pole)."""
+    import bmesh
+
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bm.loops.layers.uv.new("UVMap")  # create_uvsphere fills UVs only into an existing layer
+    bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=rings, radius=radius, calc_uvs=True)
+    for f in bm.faces:
+        f.smooth = True
     bm.to_mesh(mesh)
     bm.free()
     obj = bpy.data.objects.new(name, mesh)
@@ -194,6 +220,24 @@ def add_torus(scene, material=None, major: float = 1.0, minor: float = 0.4, name
     if material is not None:
         mesh.materials.append(material)
     return obj
+
+
+def highlights_scene(scene, material, camera_height: float = 1.2, highlights=((-0.45, 0.8), (0.35, 2.6), (0.0, 8.0)),
+                     light_height: float = 1.5, energy=(200.0, 1500.0, 12000.0), uv_size: float = 1.0) -> None:
+    """The README demo's stage: ``material`` on a large floor plane receding from a low camera, one small
+    point light per highlight (near, mid, far on the floor, as (x, y) points), each placed on the mirror
+    direction of its point so the base reflects it there and the scratches streak around it; a dim world.
+    ``energy`` per light (W; the far ones brighter so that the highlights read alike), ``uv_size`` metres
+    per UV unit."""
+    uniform_world(scene, strength=0.03)
+    add_plane(scene, size=40.0, material=material, uv_size=uv_size, location=(0.0, 15.0, 0.0))
+    cam = (0.0, -1.0, camera_height)
+    add_camera(scene, location=cam, target=(0.0, 3.0, 0.0), lens=30.0)
+    for (x, y), e in zip(highlights, energy):
+        d = (x - cam[0], y - cam[1], -cam[2])      # camera -> floor point; its mirror image goes up
+        t = light_height / cam[2]
+        light = add_light(scene, "POINT", location=(x + t * d[0], y + t * d[1], light_height), energy=e, size=0.03)
+        light.data.use_soft_falloff = False
 
 
 def render_to_file(scene, path: str) -> float:

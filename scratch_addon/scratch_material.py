@@ -9,6 +9,7 @@ its node-group twin (``node_groups.scratch_svm``) for Cycles SVM, GPU and EEVEE 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 
 import bpy
@@ -148,13 +149,17 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     base = _base_node(tree, params)
     if base is not None:
         base.location = (-200, -250)
-    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base), "osl": None, "eevee": None}
+    cost_off = int(spec_options.get("cost_off", 0))  # bench/scratch_cost.py only
+    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base, cost_off=cost_off), "osl": None, "eevee": None}
     if params.layers is not None and params.layers.n_layers > EEVEE_MAX_LAYERS:
         preview = dataclasses.replace(params, layers=scratch_layers.merged_layers(params.layers, EEVEE_MAX_LAYERS))
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
                                        f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600))
     if src is not None:
-        script = osl_compile.script_node_from_source(tree, f"{material.name}.scratch.osl", src)
+        # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
+        # and density) share it
+        script = osl_compile.script_node_from_source(tree, f"scratch_svbrdf.{hashlib.sha1(src.encode()).hexdigest()[:12]}.osl",
+                                                     src)
         script.location = (200, 300)
         uv = tree.nodes.new("ShaderNodeUVMap")
         uv.location = (-200, 400)
@@ -173,13 +178,14 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
 
 
 def _build_svm(tree, material, params: ScratchParams, lobe_data, base, label="SVM path (Cycles SVM / GPU, EEVEE)",
-               offset=(-1400, -600)) -> bpy.types.NodeSocket:
+               offset=(-1400, -600), cost_off: int = 0) -> bpy.types.NodeSocket:
     """A node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
     layers = params.layers
     theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
     before = set(tree.nodes)
     surface = scratch_svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
-                                base_socket=None if base is None else base.outputs[0], name=material.name)
+                                base_socket=None if base is None else base.outputs[0], name=material.name,
+                                cost_off=cost_off)
     frame = tree.nodes.new("NodeFrame")
     frame.label = label
     for node in set(tree.nodes) - before - {frame}:

@@ -205,3 +205,63 @@ def box_albedo(phi_o, M: int, centroid, alpha_y=None, alpha_x: float = 1e-4, ban
         inside = ((idx >= 0) & (idx < M))[None].repeat(n, 0).reshape(n * M, -1)
         out[a:b] = (vals * inside).sum(1).reshape(n, M) * d
     return out
+
+
+def alias_table(cdf):
+    """Walker's alias table of each slice's bin distribution p_b = cdf[b+1] - cdf[b] (Vose's construction).
+
+    ``cdf`` [S, M+1] (``proposal``) -> (prob [S, M] float, alias [S, M] int).  Sampling with one uniform
+    h in [0, 1) (``sample_alias``): u = h M, j = floor(u), f = u - j; bin b = j if f < prob_j, else alias_j.
+    It picks bin b with probability exactly p_b (one table lookup instead of the binary search of
+    ``sample_bins``); empty slices (all p_b = 0) get prob = 1, alias = own bin.
+    """
+    cdf = np.asarray(cdf, float)
+    if cdf.ndim != 2 or cdf.shape[1] < 2:
+        raise ValueError(f"cdf must be [S, M+1] with M >= 1; got shape {cdf.shape}")
+    S, M = cdf.shape[0], cdf.shape[1] - 1
+    p = np.clip(np.diff(cdf, axis=1), 0.0, None)
+    prob = np.ones((S, M))
+    alias = np.tile(np.arange(M), (S, 1))
+    for s in range(S):
+        tot = p[s].sum()
+        if tot <= 0:
+            continue
+        q = p[s] * (M / tot)
+        small = [j for j in range(M) if q[j] < 1.0]
+        large = [j for j in range(M) if q[j] >= 1.0]
+        while small and large:
+            j, k = small.pop(), large.pop()
+            prob[s, j], alias[s, j] = q[j], k
+            q[k] -= 1.0 - q[j]
+            (small if q[k] < 1.0 else large).append(k)
+        for j in small + large:  # round-off leftovers: probability 1 of themselves
+            prob[s, j], alias[s, j] = 1.0, j
+    return prob, alias
+
+
+def alias_pmf(prob, alias):
+    """The bin distribution an alias table samples, [S, M]: (prob_b + Σ_{j: alias_j = b} (1 - prob_j)) / M."""
+    prob = np.asarray(prob, float)
+    alias = np.asarray(alias, int)
+    S, M = prob.shape
+    out = prob.copy()
+    for s in range(S):
+        np.add.at(out[s], alias[s], 1.0 - prob[s])
+    return out / M
+
+
+def sample_alias(prob, alias, s, h):
+    """What the shader does with a uniform h in [0, 1) and an alias table: (bin b, fraction inside it),
+    the fraction uniform in [0, 1) given b (the rest of h after the pick)."""
+    prob = np.asarray(prob, float)
+    alias = np.asarray(alias, int)
+    M = prob.shape[1]
+    s, h = np.broadcast_arrays(np.asarray(s, int), np.asarray(h, float))
+    u = h * M
+    j = np.minimum(np.floor(u).astype(int), M - 1)
+    f = u - j
+    pj = prob[s, j]
+    take = f >= pj
+    b = np.where(take, alias[s, j], j)
+    frac = np.where(take, (f - pj) / np.maximum(1.0 - pj, 1e-12), f / np.maximum(pj, 1e-12))
+    return b, np.clip(frac, 0.0, 1.0)

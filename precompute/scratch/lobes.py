@@ -176,6 +176,8 @@ def table_lobes(profile, fresnel=None, resolution: int = 256, slices: int = 64, 
     - ``phi [S]`` node angles (rad), ``cell [G]`` node interval of each of G uniform φo cells;
     - ``cdf [S, M+1]``, ``total [S]``: the bin-picking distribution p_b = w_b / P of the closure weights
       w_b = mass_b / a_b (a_b what Cycles renders per unit weight, ``lobe_table.box_albedo``);
+    - ``alias_prob [S, M]``, ``alias_idx [S, M]``: the alias table of that distribution
+      (``lobe_table.alias_table``; the shaders' bin pick);
     - ``cen [S, M]``: the aim code, centroid fraction c (aim uniform in [c - h, c + h] of the bin,
       h = min(c, 1 - c)) plus 2 for even-bounce bins (their exit moves with φo like φo + const);
     - ``coef [S, M / y_group, K, 3]``, ``basis [K, NT, 3]`` (None when lossless): the sampled closure's
@@ -206,6 +208,8 @@ def table_lobes(profile, fresnel=None, resolution: int = 256, slices: int = 64, 
     out["y_group"] = int(flat["y_group"][0])
     out["coef"] = flat.get("coef")
     out["basis"] = flat.get("basis")
+    # the alias table of the bin-picking distribution: what both render paths sample bins with (one lookup)
+    out["alias_prob"], out["alias_idx"] = lobe_table.alias_table(out["cdf"])
     return out
 
 

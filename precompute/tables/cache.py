@@ -153,7 +153,9 @@ def cached_arrays(
         exr_io.write_exr(path, channels, meta)
     except OSError as exc:  # read-only or full disk: still return the result
         warnings.warn(f"cache not written ({exc})", CacheWarning, stacklevel=2)
-    return result
+    # the stored (float32) form, so that a first call and later cached calls give identical arrays (and so
+    # identical generated shaders, which materials then share)
+    return _unpack(channels, meta)
 
 
 def clear(namespace: str | None = None) -> int:

@@ -171,7 +171,7 @@ def _compiled_names(src: str) -> set:
     return oso_symbols(compile_source(src))
 
 
-@pytest.mark.parametrize("shape, rho0_array", [("fit", "L0_W"), ("table", "TB_W0")])
+@pytest.mark.parametrize("shape, rho0_array", [("fit", "L0_W"), ("table", "TB_Y")])
 def test_generated_shader_has_only_used_features(addon, shape, rho0_array):
     # The generated text holds every feature behind #if (osl/scratch_svbrdf.osl): check what OSL's
     # preprocessor kept, i.e. the compiled shader -- its sockets, variables, called functions and the
@@ -329,7 +329,7 @@ def test_table_lobes_match_exact_reference(addon, scene, render_dir, profile, fr
                         **({"lobe_shape": "table"} if mode == "lobes" else {}))
         if mode == "lobes":
             src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
-            assert "#define LOBE_TABLE 1" in src and "TB_CDF" in src
+            assert "#define LOBE_TABLE 1" in src and "TB_AP" in src
             _scene(addon, scene, mat, world="studio", samples=128)
         else:
             scene.objects["Torus"].data.materials[0] = mat
@@ -366,7 +366,7 @@ def test_table_lobes_parameters(addon):
                                        lobe_shape="table"))
     assert "#define LOSSLESS 1" in src and "#define LOBE_TABLE 1" in src
     names = _compiled_names(src)                           # what the preprocessor kept
-    assert "TB_W0" not in names and "TB_GAM" not in names  # lossless: no rho_0 / gamma arrays
+    assert "TB_Y" not in names and "TB_B" not in names  # lossless: no θo coefficient / basis arrays
     assert "pick_lobe" not in names and "h_jit" not in names and "table_lobes" in names
     assert sm.validate(profile=prof, box_lobes=True).lobe_shape == "box"
     assert sm.validate(profile=prof).lobe_shape == "table"                  # the default: exact

@@ -70,14 +70,38 @@ def test_svm_box_lobes_white_furnace(addon, scene, render_dir):
     assert abs(img.mean() - 1.0) < 0.02, img.mean()
 
 
-def test_svm_table_lobes_are_two_packed_images_and_one_closure(addon, scene):
+def test_svm_table_lobes_are_packed_images_and_one_closure(addon, scene):
     mat = _material(addon, profile=_profiles(addon)["quartic"], fresnel="iron", layers=None, backend="svm",
                     lobe_shape="table")
     nodes = mat.node_tree.nodes
     images = {n.image for n in nodes if n.bl_idname == "ShaderNodeTexImage"}
-    assert len(images) == 2  # C (CDF, total, gamma) and B (bin weights)
+    # N (φo cells), A (alias table), C (P, aim code, node φ); lossy: Y (θo coefficients), B (θo basis)
+    assert len(images) == 5
     for img in images:
         assert img.packed_file is not None and img.colorspace_settings.is_data and img.is_float
     assert sum(n.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic") for n in nodes) == 1
-    # log2(M) binary-search fetches + 2 CDF + 1 bin fetch (M = 64)
-    assert sum(n.bl_idname == "ShaderNodeTexImage" for n in nodes) == 6 + 3
+    # one cell fetch, one alias-table fetch, one bin fetch (a binary search took log2(M) + 3 = 9 at M = 64)
+    picks = [n for n in nodes if n.bl_idname == "ShaderNodeTexImage" and n.image.name.split()[2] in "NAC"]
+    assert len(picks) == 3
+
+
+def test_svm_alias_image_samples_the_table_distribution(addon, scene):
+    """The packed alias table (A image: prob, alias) picks each bin of every φo node with the table's
+    probability p_b / P exactly (independent check against the cached lobe tables' CDF)."""
+    import importlib
+
+    root = addon.__name__.rpartition(".")[0]
+    lt = importlib.import_module(root + ".precompute.scratch.lobe_table")
+    material = importlib.import_module(root + ".precompute.scratch.material")
+    svm = importlib.import_module(root + ".node_groups.scratch_svm")
+    params = material.validate(profile=_profiles(addon)["quartic"], fresnel="iron", layers=None, backend="svm",
+                               resolution=64, slices=16)
+    data = material.tables(params)["svm_lobes"]
+    img = svm.table_images("alias-check", data)["A"]
+    S, M = data["cdf"].shape[0], data["cdf"].shape[1] - 1
+    a = np.array(img.pixels[:], np.float64).reshape(S, M, 4)
+    pmf = lt.alias_pmf(a[..., 0], np.rint(a[..., 1]).astype(int))
+    p = np.diff(data["cdf"], axis=1)
+    live = data["total"] > 0
+    np.testing.assert_allclose(pmf[live], p[live], atol=2e-6)  # float32 image
+    assert np.abs(lt.alias_pmf(a[..., 0], np.roll(np.rint(a[..., 1]).astype(int), 1, axis=1))[live] - p[live]).max() > 1e-3

@@ -1,0 +1,95 @@
+"""Scratch materials at scene scale (issue 15 item 5): what N materials add to a frame's sync and to the .blend.
+
+A grid of N small UV-mapped planes, each with its own scratch material: the 10 scratch presets (not "demo") in turn, every
+repeat of a preset with another tint (so materials that share tables differ only by per-material values).
+Measured in one process, interleaved with the same grid under one plain Glossy material (baseline):
+
+  OSL text MB     total size of the distinct OSL texts the materials hold (Text datablocks)
+  .blend MB       the saved file (default save, no compression) minus the baseline grid's file
+  sync s          t(1 spp, 64x64, OSL) - t(baseline): the per-frame cost of syncing / compiling the materials
+  svm sync s      the same with Shading System SVM (the node-group twins)
+
+    python -m bench scratch_scale [--counts 20 100] [--repeats 3]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+
+
+def _modules():
+    from bench._util import blender
+
+    blender()
+    import bpy
+
+    from scratch_materials.scratch_addon import api, materials, presets, render
+
+    return bpy, api, materials, presets, render
+
+
+TINTS = [(1.0, 1.0, 1.0), (1.0, 0.85, 0.6), (0.7, 0.85, 1.0), (1.0, 0.7, 0.7), (0.8, 1.0, 0.8),
+         (0.9, 0.9, 0.6), (0.6, 0.6, 0.6), (1.0, 0.95, 0.9), (0.85, 0.75, 1.0), (0.75, 1.0, 1.0)]
+
+
+def build_grid(n: int, scratch: bool):
+    """Reset the file and build the grid of ``n`` planes (scratch materials, or one baseline Glossy)."""
+    bpy, api, materials, presets, render = _modules()
+    scene = render.reset_scene()
+    names = [p.name for p in presets.PRESETS.values() if p.kind == "scratch" and p.name != "demo"]
+    side = int(n ** 0.5 + 0.999)
+    base_mat = materials.make_brushed_material() if not scratch else None
+    for i in range(n):
+        if scratch:
+            preset = names[i % len(names)]
+            mat = api.make_scratched_material(preset, name=f"M{i:03d} {preset}", tint=TINTS[(i // len(names)) % len(TINTS)])
+        else:
+            mat = base_mat
+        obj = render.add_plane(scene, size=0.9, material=mat, name=f"P{i:03d}")
+        obj.location = (i % side - side / 2, i // side - side / 2, 0.0)
+    render.uniform_world(scene, 1.0)
+    render.add_camera(scene, location=(0.0, 0.0, 10.0), target=(0.0, 0.0, 0.0), ortho_scale=side + 1.0)
+    return scene
+
+
+def main(argv: list[str]) -> int:
+    from bench._util import report
+
+    ap = argparse.ArgumentParser(prog="python -m bench scratch_scale")
+    ap.add_argument("--counts", type=int, nargs="+", default=[20, 100])
+    ap.add_argument("--repeats", type=int, default=3)
+    a = ap.parse_args(argv)
+    bpy, api, materials, presets, render = _modules()
+    tmp = tempfile.mkdtemp(prefix="bench_scratch_scale_")
+    rows = []
+    for n in a.counts:
+        sizes, t = {}, {}
+        for scratch in (False, True):
+            scene = build_grid(n, scratch)
+            path = os.path.join(tmp, f"grid{n}{scratch}.blend")
+            bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
+            sizes[scratch] = os.path.getsize(path) / 1e6
+            if scratch:
+                texts = {tx.as_string() for tx in bpy.data.texts if tx.name.endswith(".osl")}
+                text_mb = sum(len(s) for s in texts) / 1e6
+                n_texts = len(texts)
+            for osl in (True, False):
+                render.configure_cycles(scene, samples=1, res=(64, 64), osl=osl)
+                render.render_array(scene, tmp, "warm")   # first render: compile caches warm
+                t[(scratch, osl)] = []
+            # interleave the two shading systems on this grid; the baseline grid alternates below
+            for _ in range(a.repeats):
+                for osl in (True, False):
+                    scene.cycles.shading_system = osl
+                    t[(scratch, osl)].append(render.render_array(scene, tmp, "scale")[1])
+        med = {k: statistics.median(v) for k, v in t.items()}
+        rows.append((n, n_texts, text_mb, sizes[True] - sizes[False], med[(True, True)] - med[(False, True)],
+                     med[(True, False)] - med[(False, False)], med[(False, True)]))
+    report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", ".blend MB added", "OSL sync s added",
+                             "SVM sync s added", "baseline t(1 spp) s"], rows,
+           f"Grid of N planes, the 10 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
+           f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation); load "
+           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
+    return 0
