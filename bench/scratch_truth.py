@@ -59,11 +59,9 @@ VIEWS = {
 }
 WORLDS = ("white", "first", "second")
 
-#: metres seen across the image (before snapping to whole periods).  Large on purpose: Cycles traces the
-#: extruded polyline of a curved profile differently at millimetre periods (quartic 0.5 straight down: mean
-#: bounces 1.69 at a 2 mm period vs 1.735 at 17 mm, the 2D tracer and an independent 2D Monte Carlo; gold
-#: albedo 2-4 % high) - an absolute epsilon in the renderer, not the optics; at 16 m / 64 px / 15 grooves per
-#: pixel the period is 17 mm.
+#: metres seen across the image (before snapping to whole periods; a 17 mm groove period at 64 px).  The image
+#: mean is exact only with whole periods in the frame and a period count coprime to the pixel count (see
+#: ``snapped_scale``).
 ORTHO = 16.0
 RES = 16             # pixels across
 GROOVES_PER_PIXEL = 15
