@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..precompute.iridescence import energy
 from ..precompute.iridescence.layer import (LOBE_ALPHA, NS, REACH_SIGMA, LayerSpec, PolygonLightSpec, SphereLightSpec,
                                            shader_tables)
 from . import const_array, specialise
@@ -77,8 +78,10 @@ def generate(spec: LayerSpec) -> str:
                  REACH=REACH_SIGMA * spec.sigma_um, NS=NS, QBITS=int(tab["qbits"]), QMASK=(1 << tab["qbits"]) - 1,
                  NCAND=int(spec.candidates), NSTORE=nstore, KS=int(spec.samples), LOBE_ALPHA=LOBE_ALPHA,
                  GO_U=float(grid.origin[0]), GO_V=float(grid.origin[1]), CELL=float(grid.cell), NX=int(grid.nx),
-                 NY=int(grid.ny), NSPH=len(spheres), NPOLY=len(polys), ROUTE_LIGHTS=spec.route == "lights",
-                 BASE_BLEND=bool(spec.base_blend))
+                 NY=int(grid.ny), NSPH=len(spheres), NPOLY=len(polys), NLIGHT=len(spheres) + len(polys),
+                 ROUTE_LIGHTS=spec.route == "lights", BASE_BLEND=bool(spec.base_blend),
+                 BASE_PAPER=bool(spec.base_blend) and spec.base_weight == "paper",
+                 SHADOWS=spec.route == "lights" and bool(spec.shadows) and bool(lights), KNEE=energy.KNEE)
     tables = [const_array("SEG", tab["segments"]),
               const_array("CSTART", grid.start, "int", per_line=16),
               const_array("CITEMS", tab["packed"], "int", per_line=16),

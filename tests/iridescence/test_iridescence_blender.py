@@ -30,10 +30,11 @@ def irid(addon):
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("candidates, samples, spp", [(4, 4, 512), (0, 4, 128)])
-def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, samples, spp):
+@pytest.mark.parametrize("candidates, samples, spp, count", [(4, 4, 512, 150), (0, 4, 128, 300)])
+def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, samples, spp, count):
     im, _ = irid
-    S = make_scratches(im.scratch_set)
+    # 300 segments: E up to ~1 (overlap normalisation active; exact with every segment), 150: below the knee
+    S = make_scratches(im.scratch_set, count=count)
     sc, _mat, cam = flat_scene(addon.render, im, S, route="lobes", res=32, spp=spp, candidates=candidates,
                                samples=samples)
     img, _ = addon.render.render_array(sc, str(render_dir))
@@ -49,10 +50,10 @@ def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, 
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("candidates, spp", [(4, 256), (0, 4)])
-def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, spp):
+@pytest.mark.parametrize("candidates, spp, count", [(4, 256, 150), (0, 4, 300)])
+def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, spp, count):
     im, _ = irid
-    S = make_scratches(im.scratch_set)
+    S = make_scratches(im.scratch_set, count=count)      # as route A: RIS below the knee, exhaustive above
     sc, _mat, cam = flat_scene(addon.render, im, S, route="lights", res=32, spp=spp, candidates=candidates)
     img, _ = addon.render.render_array(sc, str(render_dir))
     ref = numpy_reference(ir, S, cam, 32)
