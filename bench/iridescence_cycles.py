@@ -44,7 +44,7 @@ def test_scratches(scratch_set_mod, count=300, seed=1, uv_scale_um=2e4, domain=(
 
 
 def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=16, seed=1,
-               light=None, radius=0.1, energy=1000.0, samples=1, candidates=4, layer=True):
+               light=None, radius=0.1, energy=1000.0, samples=1, candidates=4, layer=True, shadows=True):
     """Reset the file and build the flat validation scene; returns (scene, material, camera matrix 4x4).
 
     ``base``: None (no base closure), "metal" (metallic Principled, roughness 0.2).
@@ -65,7 +65,8 @@ def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=1
     if layer:
         c = light_center() if light is None else np.asarray(light, float)
         _add_point_light(scene, c, radius, energy)
-        im.insert_layer(mat, scratches, route=route, samples=samples, candidates=candidates, scene=scene)
+        im.insert_layer(mat, scratches, route=route, samples=samples, candidates=candidates, scene=scene,
+                        shadows=shadows)
     render.add_plane(scene, size=PLANE_SIZE, material=mat)
     cam_dir = np.array([0.0, -math.sin(CAM_THETA), math.cos(CAM_THETA)])
     cam = render.add_camera(scene, location=tuple(5 * cam_dir), target=(0, 0, 0), ortho_scale=ORTHO)

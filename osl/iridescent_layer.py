@@ -39,7 +39,10 @@ Two routes (``route``):
   result is radiance, returned as ``emission()``: Cycles' NEE never sees it (no BSDF, no double
   counting with the lights it also samples for the base), BSDF rays cannot bounce off it, and
   the material must use ``emission_sampling = 'NONE'`` so the object is not sampled as a light.
-  No shadows, no world light, no indirect light in the scratches; light edits need a rebuild.
+  Shadows (``shadows``, default on): one ``trace()`` per light and sample toward a uniformly
+  chosen point of the light (sphere: its disk facing P; polygon: area-weighted fan triangle), an
+  unbiased soft-shadow visibility estimate.  No world light, no indirect light in the scratches;
+  light edits need a rebuild.
 
 Segment selection (``candidates``, both routes): 0 = every segment listed in the shading point's
 reach-grid cell (exact; cost ∝ scratch density).  N > 0 (default 4) = N stratified draws from the

@@ -384,7 +384,7 @@ class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):
     route: bpy.props.EnumProperty(name="Route", default="LOBES", update=compat.update(_rebuild), items=[
         ("LOBES", "Lobes (any light)", "Narrow GGX lobes: Cycles' light sampling, shadows, any light"),
         ("LIGHTS", "Closed-form lights", "Velinov's sphere/polygon integrals for the scene's point/area lights "
-                                         "(no shadows; rebuilt when lights change)")])
+                                         "(shadows by one traced ray per light; rebuilt when lights change)")])
     samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=compat.update(_rebuild))
     candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer.MAX_CANDIDATES,
                                       update=compat.update(_rebuild),

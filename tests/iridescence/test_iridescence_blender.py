@@ -202,3 +202,42 @@ def test_bad_parameters_raise_clear_errors(addon, irid, scene):
     with pytest.raises(ValueError, match="preset"):
         im.apply_preset(None, "chrome")
     assert im.layer_node(mat) is None      # nothing half-built
+
+
+def _add_occluder(render, scene, x_range, y_range, z):
+    """A horizontal opaque quad at height z (m) spanning x_range × y_range (m)."""
+    obj = render.add_plane(scene, size=1.0, name="Occluder")
+    obj.scale = (x_range[1] - x_range[0], y_range[1] - y_range[0], 1.0)
+    obj.location = (0.5 * (x_range[0] + x_range[1]), 0.5 * (y_range[0] + y_range[1]), z)
+    return obj
+
+
+@pytest.mark.render
+def test_route_b_occluded_light_casts_a_shadow(addon, irid, scene, render_dir):
+    """Issue #17 item 4: an opaque quad between the sphere light and the plane (out of the camera's view)
+    darkens route B's scratches completely; the same quad beside the light path changes nothing; with
+    shadows off the occluder is ignored (the old behaviour)."""
+    import bpy
+
+    im, _ = irid
+    S = make_scratches(im.scratch_set, count=150)
+    # The light sits at light_center() ≈ (0.25, 1.0, 1.73) m, radius 0.1; the camera sees |x| ≤ 0.15,
+    # |y| ≤ 0.18 of the plane.  At z = 0.8 every ray from there to the light crosses x ∈ [-0.1, 0.25],
+    # y ∈ [0.3, 0.65]; camera rays cross z = 0.8 at y ≈ -0.46: the quad below is never seen directly.
+    between = dict(x_range=(-0.4, 0.6), y_range=(0.05, 0.95), z=0.8)
+    beside = dict(x_range=(1.0, 2.0), y_range=(0.05, 0.95), z=0.8)
+
+    def render_with(occ, shadows=True, name="img"):
+        sc, _m, _c = flat_scene(addon.render, im, S, route="lights", res=16, spp=4, shadows=shadows)
+        if occ is not None:
+            _add_occluder(addon.render, sc, **occ)
+            bpy.context.view_layer.update()
+        img, _ = addon.render.render_array(sc, str(render_dir), name)
+        return img
+
+    free = render_with(None, name="free")
+    assert free.mean() > 0.0                           # the scratches are lit without the occluder
+    assert render_with(between, name="between").max() == 0.0
+    np.testing.assert_allclose(render_with(beside, name="beside"), free, rtol=1e-5, atol=1e-7)
+    no_shadows = render_with(between, shadows=False, name="noshadow")
+    np.testing.assert_allclose(no_shadows, free, rtol=1e-5, atol=1e-7)
