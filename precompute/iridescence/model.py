@@ -66,7 +66,7 @@ __all__ = [
     "area_density_point", "contained_length", "eta_footprint", "rho_footprint",
     "footprint_reference",
     "SphereLight", "PolygonLight", "Footprint", "EvalResult", "evaluate", "scratch_brdf", "evaluate_mc",
-    "BLENDS", "pair_energy",
+    "BLENDS", "pair_energy", "depth_term_angle",
     "ScratchSet", "ScratchGrid", "random_scratches", "scratches_from_polylines", "build_grid",
     "brute_force_query", "to_shader_arrays",
 ]
@@ -82,6 +82,14 @@ BLENDS = ("energy", "paper", "none")
 def depth_term(D_um, lam_um) -> np.ndarray:
     """|𝒟|² = 2 − 2 cos(4π D/λ), eq. 11 (from eq. 4).  D, λ in µm; dimensionless in [0, 4]."""
     return 2.0 - 2.0 * np.cos(4.0 * np.pi * np.asarray(D_um) / np.asarray(lam_um))
+
+
+def depth_term_angle(D_um, lam_um, cos_sum) -> np.ndarray:
+    """|𝒟|² = 2 − 2 cos(k D (cosθ_i + cosθ_o)): eq. 4 with the angle-dependent phase of Werner et al.
+    2017 (Kirchhoff's q_z = k(ω_i,z + ω_o,z) instead of eq. 4's 2k; equal at normal incidence and
+    reflection).  ``cos_sum`` = ω_i,z + ω_o,z (dimensionless, [0, 2]); D, λ in µm; in [0, 4].
+    bench/iridescence_wave.py shows where the two depart (cos_sum ≲ 1.7 for D = λ/4)."""
+    return 2.0 - 2.0 * np.cos(2.0 * np.pi * np.asarray(D_um) * np.asarray(cos_sum) / np.asarray(lam_um))
 
 
 def width_term(W_um, xi2, lam_um) -> np.ndarray:
@@ -438,8 +446,13 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
 
 
 # ----------------------------------------------------------------------------- point BRDF and MC reference
-def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float = SIGMA_UM) -> np.ndarray:
+def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float = SIGMA_UM,
+                 phase: str = "normal") -> np.ndarray:
     """Scratch term of the SVBRDF f_r (1/sr), eqs. 1, 6, 7, 9-11 — brute force over all segments.
+
+    ``phase``: "normal" = eq. 4's |𝒟|² (the paper, the shaders); "angle" = the angle-dependent phase
+    (``depth_term_angle``; numpy only: its energy has no closed form, so the layer's base weight and
+    the shaders keep eq. 4).
 
     ``uv`` (P, 2), ``wi``/``wo`` (P, 3) local unit directions, ``lam_um`` (L,) → (P, L).
     Point evaluation (finite-segment |η_s|² as in ``eta_s_sq``); for testing and
@@ -460,7 +473,13 @@ def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float =
     A_C = np.pi * sigma_um ** 2
     k = 2 * np.pi / lam
     Wm = scratches.width_um
-    f = (width_term(Wm[None, :, None], xi2[..., None], lam) * depth_term(scratches.depth_um[None, :, None], lam)
+    if phase == "normal":
+        dt = depth_term(scratches.depth_um[None, :, None], lam)
+    elif phase == "angle":
+        dt = depth_term_angle(scratches.depth_um[None, :, None], lam, (wi[:, 2] + wo[:, 2])[:, None, None])
+    else:
+        raise ValueError(f"phase must be 'normal' or 'angle' (got {phase!r})")
+    f = (width_term(Wm[None, :, None], xi2[..., None], lam) * dt
          * eta_s_sq(s_b, sigma_um, s1, s2)[..., None] * np.exp(-(sigma_um * k * xi1[..., None]) ** 2))
     return np.where(wi[:, 2:3] > 0.0, f.sum(axis=1) / (A_C * lam ** 2), 0.0)
 
