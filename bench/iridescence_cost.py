@@ -141,31 +141,44 @@ CONFIGS = [
     ("base SVM", dict(layer=False, osl=False)),
     ("base OSL", dict(layer=False, osl=True)),
     ("layer A", dict(route="lobes")),
+    ("layer A, eq. 6 weight (before #17)", dict(route="lobes", base_weight="paper")),
+    ("layer A, no base weight", dict(route="lobes", base_blend=False)),
+    ("layer A, no lobes (KS 0)", dict(route="lobes", edit=define("KS", "0"))),
+    ("layer A, 1 candidate", dict(route="lobes", candidates=1)),
     ("layer A, nothing in reach", dict(route="lobes", edit=define("NX", "0"))),
 ]
 
 
 def main(argv) -> int:
     from bench._util import report
-    from bench.iridescence_cycles import _setup
+    from bench.iridescence_fig import setup
 
     quick = "--quick" in argv
-    render, im = _setup()
-    n = 16 if quick else 128
-    rounds = 1 if quick else 3
-    res = (64, 64) if quick else (160, 160)
+    render, im = setup()
+    n = 16 if quick else 64
+    rounds = 1 if quick else 5
+    res = (64, 64) if quick else (128, 128)
     tmp = tempfile.mkdtemp()
     sets = scratch_sets(im, quick)
     res_t = cost_table(render, im, sets, CONFIGS, n=n, rounds=rounds, res=res, tmp=tmp)
     rows = []
     for sname, _S in sets:
-        base = statistics.median(res_t[(sname, "base SVM")])
+        med = {c: statistics.median(v[0] for v in res_t[(sname, c)]) for c, _kw in CONFIGS}
+        wall = {c: statistics.median(v[1] for v in res_t[(sname, c)]) for c, _kw in CONFIGS}
         for cname, _kw in CONFIGS:
-            v = statistics.median(res_t[(sname, cname)])
-            rows.append([sname, cname, v * 1e3, v / base])
+            rows.append([sname, cname, f"{med[cname] * 1e3:.2f}", f"{wall[cname] * 1e3:.2f}",
+                         f"{med[cname] / med['base SVM']:.2f}", f"{med[cname] / med['base OSL']:.2f}"])
+        # the energy fix's cost: per round (same round, adjacent renders), then the median of the ratios
+        ratios = [a[0] / b[0] for a, b in zip(res_t[(sname, "layer A")], res_t[(sname, CONFIGS[3][0])])]
+        rows.append([sname, "energy weight / eq. 6 weight (median of per-round ratios)", "", "",
+                     f"{statistics.median(ratios):.3f}", ""])
     notes = (f"Whole frame: UV sphere r = 1 m filling a {res[0]}x{res[1]} orthographic frame, uniform white world, "
              f"adaptive sampling off, per-sample cost = (t({n + 1} spp) − t(1 spp))/{n}, median of {rounds} "
              "interleaved rounds.  × base = per-sample cost / the SVM anisotropic Glossy (Multiscatter GGX, "
-             "roughness 0.2, anisotropy 0.8) on SVM in the same round set.")
-    report("iridescence_cost", ["set", "setup", "ms / sample", "× base SVM"], rows, notes)
+             "roughness 0.2, anisotropy 0.8) on SVM in the same round set.  CPU seconds of the rendering process "
+             "(user + system, all threads): robust to other processes sharing the cores.  Rows below 'layer A' are "
+             "the stage breakdown: the eq. 6 weight (the layer before issue #17), no base weight, no lobes (KS 0: "
+             "candidates and weight only), one candidate, and no scratch in reach (grid lookup only).")
+    report("iridescence_cost", ["set", "setup", "CPU ms / sample", "wall ms / sample", "× base SVM (CPU)",
+                                "× base OSL (CPU)"], rows, notes)
     return 0

@@ -122,12 +122,10 @@ def errors(img, ref, block=8):
 
 
 def _setup():
-    from bench._util import blender
+    """(render, iridescence_material): ``bench.iridescence_fig.setup`` (kept here for the other benches)."""
+    from bench.iridescence_fig import setup
 
-    blender(register=True)
-    from scratch_materials.scratch_addon import iridescence_material as im, render
-
-    return render, im
+    return setup()
 
 
 def _timed_runs(configs, build, reps, tmp):

@@ -88,7 +88,8 @@ def generate(spec: LayerSpec) -> str:
     tables = [const_array("SEG", tab["segments"]),
               const_array("CSTART", grid.start, "int", per_line=16),
               const_array("CITEMS", tab["packed"], "int", per_line=16),
-              f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};\n"]
+              f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};\n",
+              "    float KL[3] = {" + ", ".join(f"{2 * np.pi / x:.9g}" for x in lam) + "};   // 2π/λ (1/µm)\n"]
     if spheres:
         tables.append(const_array("SPH", [v for L in spheres for v in (*L.center, L.radius, *L.radiance)]))
     if polys:
