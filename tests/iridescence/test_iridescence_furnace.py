@@ -23,14 +23,17 @@ def _set(im, count, W, D, seed):
                                    seed=seed, uv_scale_um=1e4)
 
 
-@pytest.mark.parametrize("count, W, D, view, tol", [
-    (300, 3.0, 0.1375, (0.0, 0.0), 0.02),          # the λ/4 set (1.07 with eq. 6), straight down
-    (1000, 2.0, 0.6, (75.0, 40.0), 0.02),          # another set, grazing oblique view
-    (2500, 8.0, 0.1375, (35.0, 250.0), 0.05),      # area covered more than once: overlap normalisation
+@pytest.mark.parametrize("count, W, D, view, tol, kw", [
+    (300, 3.0, 0.1375, (0.0, 0.0), 0.02, {}),      # the λ/4 set (1.07 with eq. 6), straight down
+    (300, 3.0, 0.1375, (50.0, 10.0), 0.02, {"candidates": 0, "samples": 2}),   # every segment, 2 lobes
+    (1000, 2.0, 0.6, (75.0, 40.0), 0.02, {}),      # another set, grazing oblique view
+    (2500, 8.0, 0.1375, (35.0, 250.0), 0.05, {}),  # area covered more than once: overlap normalisation
+    (1500, 0.8, 2.0, (60.0, 300.0), 0.02, {}),     # narrow and deep: wide lobes, much of them below the horizon
+    (600, 20.0, 0.3, (10.0, 120.0), 0.02, {}),     # wide (narrow lobes), about λ/2 for green: tinted mirror
 ])
-def test_white_furnace_route_a(addon, im, scene, render_dir, count, W, D, view, tol):
+def test_white_furnace_route_a(addon, im, scene, render_dir, count, W, D, view, tol, kw):
     S = _set(im, count, W, D, seed=count)
-    sc = furnace_scene(addon.render, im, S, view=view, res=24, spp=48)
+    sc = furnace_scene(addon.render, im, S, view=view, res=24, spp=48, **kw)
     img, _ = addon.render.render_array(sc, str(render_dir))
     m = img.mean((0, 1))
     # Noise: the lobes carry E ≲ 0.3-1 of the energy with a per-pixel relative spread ~1 at 48 spp;
