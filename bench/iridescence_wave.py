@@ -189,6 +189,8 @@ def single_scratch(profile, W, D, lam_um, wi, *, phase="angle", s_b=0.0, sigma_u
     cos_sum = wi[2] + np.sqrt(np.maximum(0.0, 1.0 - wox * wox - wo_y * wo_y))
     dref = ir.depth_term(D, lam_um)
     model_a = model_s * np.where(dref > 0, ir.depth_term_angle(D, lam_um, cos_sum) / np.where(dref > 0, dref, 1.0), 0.0)
+    # and at the lobe centre only (ω_o,z = ω_i,z there: D → D ω_i,z, ``evaluate(phase="view")``, the shaders')
+    model_v = model_s * np.where(dref > 0, ir.depth_term(D * wi[2], lam_um) / np.where(dref > 0, dref, 1.0), 0.0)
     cone = CONE / (sigma_um * k)
     d = lam_um / (n * dy)
     spec = np.abs(xi2) < cone
@@ -200,7 +202,7 @@ def single_scratch(profile, W, D, lam_um, wi, *, phase="angle", s_b=0.0, sigma_u
                 wave_spec=float(wave[spec].sum() * d), wave_diff=float(wave[~spec].sum() * d),
                 model_E=E, model_rho=rho,
                 model_scratch_spec=float(model_s[spec].sum() * d), model_scratch_diff=float(model_s[~spec].sum() * d),
-                model_angle_diff=float(model_a[~spec].sum() * d))
+                model_angle_diff=float(model_a[~spec].sum() * d), model_view_diff=float(model_v[~spec].sum() * d))
 
 
 def compare_single(profile, W, D, lam_um, theta_deg, phase="angle", **kw):
@@ -212,6 +214,7 @@ def compare_single(profile, W, D, lam_um, theta_deg, phase="angle", **kw):
     model_spec_paper = (1.0 - min(r["model_rho"], 1.0)) + r["model_scratch_spec"]
     model_diff = float(fac) * r["model_scratch_diff"]
     model_angle_diff = float(fac) * r["model_angle_diff"]
+    model_view_diff = float(fac) * r["model_view_diff"]
     out = ~(np.abs(r["xi2"]) < r["cone"])
     ws = r["wave"][out].sum()
     lobe_l1 = (float(np.abs(r["wave"][out] - fac * r["model_scratch"][out]).sum() / ws)
@@ -219,7 +222,8 @@ def compare_single(profile, W, D, lam_um, theta_deg, phase="angle", **kw):
     lobe_l1_angle = (float(np.abs(r["wave"][out] - fac * r["model_angle"][out]).sum() / ws)
                      if r["wave_diff"] > 1e-6 else float("nan"))
     return dict(r, lobe_l1_angle=lobe_l1_angle, model_spec_energy=model_spec_energy, model_spec_paper=model_spec_paper, model_diff=model_diff,
-                lobe_l1=lobe_l1, model_angle_diff=model_angle_diff)
+                lobe_l1=lobe_l1, model_angle_diff=model_angle_diff,
+                model_view_diff=model_view_diff)
 
 
 # ----------------------------------------------------------------------------- crossing scratches (2D)
@@ -317,6 +321,7 @@ def single_rows(quick=False):
                 rows.append([f"1 x {prof}", W, D, th, lam,
                              _fmt(a["wave_spec"]), _fmt(a["model_spec_energy"]), _fmt(a["model_spec_paper"]),
                              _fmt(a["wave_diff"]), _fmt(a["model_diff"]), _fmt(a["model_angle_diff"]),
+                             _fmt(a["model_view_diff"]),
                              _fmt(nrm["wave_diff"]),
                              _fmt(a["lobe_l1"], 2), _fmt(a["lobe_l1_angle"], 2), _fmt(a["wave_spec"] + a["wave_diff"])])
     return rows
@@ -404,6 +409,7 @@ def main(argv) -> int:
     p_rows = phase_departure_rows()
     t1 = format_table(["scratch", "W um", "D um", "theta_i", "lambda um", "wave spec", "model spec (energy)",
                        "model spec (paper 1-rho)", "wave diff", "model diff", "model diff (angle phase)",
+                       "model diff (view phase)",
                        "wave diff (eq.4 phase)",
                        "lobe L1", "lobe L1 (angle phase)", "wave total"], s_rows)
     t2 = format_table(["scratches", "theta_i", "lambda um", "wave spec", "model spec (energy)",
@@ -415,7 +421,8 @@ def main(argv) -> int:
             "incidence across the scratch)\n\nwave spec / diff: energy of the Kirchhoff field inside / outside the "
             f"specular cone (|ξ| < {CONE:g}/(σk)), propagating only; model spec = base weight + scratch lobe in the "
             "cone (energy-consistent, or eq. 6's 1 − ρ); model diff = the scratch lobe outside (with eq. 4's phase, and with the angle-dependent "
-            "phase of ``model.depth_term_angle``); wave diff (eq. 4 phase) = the Kirchhoff field computed with q = 2k; lobe L1 = "
+            "phase of ``model.depth_term_angle``, and with it at the lobe centre only, 'view' = D cosθ: the "
+            "shader option); wave diff (eq. 4 phase) = the Kirchhoff field computed with q = 2k; lobe L1 = "
             "∫|wave − model| / ∫wave outside the cone.\n\n" + t1 +
             "\n\n## Crossing grooves (2D FFT, σ = 60 µm, incidence azimuth 30° from the first groove)\n\n" + t2 +
             "\n\n## Where eq. 4's normal-incidence phase departs from the angle-dependent phase\n\n" + t3 + "\n")

@@ -420,15 +420,15 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
     x3 = np.concatenate([uv[pi], np.zeros((pi.size, 1))], axis=1)
     A = _light_factor(light, x3, wo[pi], scratches.phi[sid], W, lam, sigma_um, si_mode, n_band) if pi.size else np.zeros((0, L))
     A_C = np.pi * sigma_um ** 2
-    contrib = (W ** 2)[:, None] * depth_term(scratches.depth_um[sid][:, None], lam[None]) * eta[:, None] * A \
+    D = scratches.depth_um[sid]
+    contrib = (W ** 2)[:, None] * depth_term(D[:, None], lam[None]) * eta[:, None] * A \
         / (A_C * lam[None] ** 2)
     scratch = np.zeros((P, L))
     np.add.at(scratch, pi, contrib)
     rho = np.clip(np.bincount(pi, weights=rho_pair, minlength=P), 0.0, 1.0)
     E = np.zeros((P, L))
     if pi.size:
-        np.add.at(E, pi, pair_energy(eta, W, scratches.depth_um[sid], scratches.phi[sid], wo[pi], lam, sigma_um,
-                                     exact_fraction))
+        np.add.at(E, pi, pair_energy(eta, W, D, scratches.phi[sid], wo[pi], lam, sigma_um, exact_fraction))
     if blend == "energy":
         N, factor = _energy.normalise(E)
         weight, scratch = 1.0 - N, scratch * factor
@@ -451,8 +451,10 @@ def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float =
     """Scratch term of the SVBRDF f_r (1/sr), eqs. 1, 6, 7, 9-11 — brute force over all segments.
 
     ``phase``: "normal" = eq. 4's |𝒟|² (the paper, the shaders); "angle" = the angle-dependent phase
-    (``depth_term_angle``; numpy only: its energy has no closed form, so the layer's base weight and
-    the shaders keep eq. 4).
+    per (ω_i, ω_o) (``depth_term_angle``; numpy only: its energy over the lobe has no closed form, so
+    the layer's base weight cannot follow it exactly; bench/iridescence_wave.py); "view" = that phase
+    at the lobe centre only (D → D ω_o,z; closed-form energy, but off at grazing views and for deep
+    scratches — the bench's "view phase" column — so the shaders do not offer it).
 
     ``uv`` (P, 2), ``wi``/``wo`` (P, 3) local unit directions, ``lam_um`` (L,) → (P, L).
     Point evaluation (finite-segment |η_s|² as in ``eta_s_sq``); for testing and
@@ -477,8 +479,10 @@ def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float =
         dt = depth_term(scratches.depth_um[None, :, None], lam)
     elif phase == "angle":
         dt = depth_term_angle(scratches.depth_um[None, :, None], lam, (wi[:, 2] + wo[:, 2])[:, None, None])
+    elif phase == "view":
+        dt = depth_term(scratches.depth_um[None, :, None] * wo[:, 2, None, None], lam)
     else:
-        raise ValueError(f"phase must be 'normal' or 'angle' (got {phase!r})")
+        raise ValueError(f"phase must be 'normal', 'view' or 'angle' (got {phase!r})")
     f = (width_term(Wm[None, :, None], xi2[..., None], lam) * dt
          * eta_s_sq(s_b, sigma_um, s1, s2)[..., None] * np.exp(-(sigma_um * k * xi1[..., None]) ** 2))
     return np.where(wi[:, 2:3] > 0.0, f.sum(axis=1) / (A_C * lam ** 2), 0.0)

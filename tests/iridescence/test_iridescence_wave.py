@@ -104,3 +104,16 @@ def test_crossing_grooves_energy_split():
     assert abs(r["wave_total"] - 1.0) < 1e-4       # Parseval up to the window's truncation at ±4σ
     assert abs(r["wave_spec"] - r["model_spec_energy"]) < 0.04
     assert abs(r["wave_spec"] - r["model_spec_paper"]) > 0.15
+
+
+def test_lobe_centre_phase_is_not_enough():
+    # D → D cosθ (the angle-dependent phase at the lobe centre, closed-form energy) fixes 60° for a λ/4
+    # groove but is off by > 2x at grazing incidence and for deep grooves (|𝒟|² oscillates across the
+    # lobe): why the shaders keep eq. 4 and the exact option stays in numpy (scratch_brdf(phase="angle"))
+    r = iw.compare_single("rect", 3.0, 0.1375, 0.532, 60.0)
+    assert abs(r["model_view_diff"] / r["wave_diff"] - 1.0) < 0.05
+    for theta, D in [(80.0, 0.1375), (60.0, 1.0)]:
+        r = iw.compare_single("rect", 3.0, D, 0.532, theta)
+        bad = r["model_view_diff"] / r["wave_diff"]
+        assert bad < 0.5 or bad > 2.0, bad
+        assert abs(r["model_angle_diff"] / r["wave_diff"] - 1.0) < 0.05
