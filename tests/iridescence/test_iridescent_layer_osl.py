@@ -240,7 +240,7 @@ def test_shader_energy_constants_are_the_numpy_twins():
 
     from scratch_materials import osl
     src = osl.read_source("iridescent_layer.osl")
-    body = re.search(r"void tail_nd\(float x, output float nu, output float de\)\s*\{(.*?)\n\}", src, re.S).group(1)
+    body = re.search(r"void tail_nd\(color x, output color nu, output color de\)\s*\{(.*?)\n\}", src, re.S).group(1)
     nums = [float(v) for v in re.findall(r"-?\d+\.\d+", body)]
     a1, a2, b1, b2 = en.TAIL_COEF
     assert nums == [0.0, 1.0, a1, a2, 2.0, b1, b2, a2]             # max(x, 0.0), then the rational
