@@ -44,10 +44,12 @@ def test_scratches(scratch_set_mod, count=300, seed=1, uv_scale_um=2e4, domain=(
 
 
 def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=16, seed=1,
-               light=None, radius=0.1, energy=1000.0, samples=1, candidates=4, layer=True):
+               light=None, radius=0.1, energy=1000.0, samples=1, candidates=4, layer=True, shadows=True,
+               base_weight="energy"):
     """Reset the file and build the flat validation scene; returns (scene, material, camera matrix 4x4).
 
-    ``base``: None (no base closure), "metal" (metallic Principled, roughness 0.2).
+    ``base``: None (no base closure), "metal" (metallic Principled, roughness 0.2), "emission" (unit white
+    emission: the base weight is rendered directly).
     ``light``: world centre of the sphere light (default ``light_center()``)."""
     import bpy
 
@@ -62,10 +64,15 @@ def flat_scene(render, im, scratches, *, route="lobes", base=None, res=32, spp=1
         b.inputs["Metallic"].default_value = 1.0
         b.inputs["Roughness"].default_value = 0.2
         tree.links.new(b.outputs[0], out.inputs["Surface"])
+    elif base == "emission":         # unit white emission: the render shows the base's weight itself
+        b = tree.nodes.new("ShaderNodeEmission")
+        b.inputs["Strength"].default_value = 1.0
+        tree.links.new(b.outputs[0], out.inputs["Surface"])
     if layer:
         c = light_center() if light is None else np.asarray(light, float)
         _add_point_light(scene, c, radius, energy)
-        im.insert_layer(mat, scratches, route=route, samples=samples, candidates=candidates, scene=scene)
+        im.insert_layer(mat, scratches, route=route, samples=samples, candidates=candidates, scene=scene,
+                        shadows=shadows, base_weight=base_weight)
     render.add_plane(scene, size=PLANE_SIZE, material=mat)
     cam_dir = np.array([0.0, -math.sin(CAM_THETA), math.cos(CAM_THETA)])
     cam = render.add_camera(scene, location=tuple(5 * cam_dir), target=(0, 0, 0), ortho_scale=ORTHO)
@@ -92,10 +99,13 @@ def _add_point_light(scene, center, radius, energy):
     return obj
 
 
-def numpy_reference(ir, scratches, cam_matrix, res, light=None, radius=0.1, energy=1000.0, ss=4):
+def numpy_reference(ir, scratches, cam_matrix, res, light=None, radius=0.1, energy=1000.0, ss=4, weight=False,
+                    **eval_kw):
     """``ir.evaluate`` (point evaluation) averaged over ss x ss sub-pixel positions, × light radiance.
 
-    ``ir`` is the repository's ``precompute.iridescence``; ``scratches`` any ScratchSet-like object."""
+    ``ir`` is the repository's ``precompute.iridescence``; ``scratches`` any ScratchSet-like object.
+    ``weight``: add the base's weight (the render of a unit-emission base, ``flat_scene(base="emission")``);
+    ``eval_kw``: more ``evaluate`` keywords (blend=...)."""
     S = ir.ScratchSet(scratches.p0, scratches.p1, scratches.width_um, scratches.depth_um, scratches.uv_scale_um)
     Mw = np.asarray(cam_matrix, float)
     right, up, fwd, org = Mw[:3, 0], Mw[:3, 1], -Mw[:3, 2], Mw[:3, 3]
@@ -108,8 +118,9 @@ def numpy_reference(ir, scratches, cam_matrix, res, light=None, radius=0.1, ener
     c = light_center() if light is None else np.asarray(light, float)
     c_uv = c / PLANE_SIZE + np.array([0.5, 0.5, 0.0])
     L = energy / (4 * math.pi ** 2 * radius ** 2)            # Cycles sphere light radiance (W/m²/sr)
-    r = ir.evaluate(S, uv.reshape(-1, 2), wo.reshape(-1, 3), ir.SphereLight(c_uv, radius / PLANE_SIZE))
-    return (r.scratch * L).reshape(res, ss, res, ss, 3).mean((1, 3))
+    r = ir.evaluate(S, uv.reshape(-1, 2), wo.reshape(-1, 3), ir.SphereLight(c_uv, radius / PLANE_SIZE), **eval_kw)
+    out = r.scratch * L + (r.weight if weight else 0.0)
+    return out.reshape(res, ss, res, ss, 3).mean((1, 3))
 
 
 def errors(img, ref, block=8):
@@ -121,12 +132,10 @@ def errors(img, ref, block=8):
 
 
 def _setup():
-    from bench._util import blender
+    """(render, iridescence_material): ``bench.iridescence_fig.setup`` (kept here for the other benches)."""
+    from bench.iridescence_fig import setup
 
-    blender(register=True)
-    from scratch_materials.scratch_addon import iridescence_material as im, render
-
-    return render, im
+    return setup()
 
 
 def _timed_runs(configs, build, reps, tmp):

@@ -3,7 +3,9 @@ et al. 2018, Fig. 1 right / Fig. 10), rendered in Cycles with the layer's defaul
 
 Writes docs/img/iridescence_render.png (and bench/out/iridescence_render.png) and prints the
 render time.  Run: ``.venv/bin/python -m bench iridescence_fig [--quick]``.
-``plate_scene`` is also the representative scene of ``bench/iridescence_cycles.py``.
+``plate_scene`` is also the representative scene of ``bench/iridescence_cycles.py``; ``setup`` (bpy and the
+registered extension) is shared by the iridescence benches (this module imports no other bench module, so
+``iridescence_cycles`` -> ``iridescence_fig`` is the only direction).
 """
 from __future__ import annotations
 
@@ -14,6 +16,16 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "img"
 
 
+def setup():
+    """(render, iridescence_material) of the registered extension (hermetic bpy, see ``bench._util.blender``)."""
+    from bench._util import blender
+
+    blender(register=True)
+    from scratch_materials.scratch_addon import iridescence_material as im, render
+
+    return render, im
+
+
 def plate_scratches(im, count=6000):
     """6000 isotropic segments over a 2 m plate = 2 cm of steel (uv_scale 2e4 µm per UV)."""
     return im.generate_scratch_set(count, length_range=(0.05, 0.3), width_range_um=(0.8, 6.0),
@@ -21,9 +33,10 @@ def plate_scratches(im, count=6000):
 
 
 def plate_scene(render, im, S, *, res=(128, 96), spp=64, layer=True, route="lobes", samples=1, candidates=4,
-                seed=0):
+                seed=0, world_strength=0.05, **layer_kw):
     """Steel plate (metallic Principled, roughness 0.03), dim studio world, small sphere light,
-    perspective camera; with ``layer`` the iridescent layer sits on the steel.  Returns the scene."""
+    perspective camera; with ``layer`` the iridescent layer sits on the steel (``layer_kw``: more
+    ``insert_layer`` keywords, e.g. base_weight).  Returns the scene."""
     import bpy
 
     scene = render.reset_scene()
@@ -36,7 +49,7 @@ def plate_scene(render, im, S, *, res=(128, 96), spp=64, layer=True, route="lobe
     base.inputs["Metallic"].default_value = 1.0
     base.inputs["Roughness"].default_value = 0.03
     tree.links.new(base.outputs[0], out.inputs["Surface"])
-    render.studio_world(scene, strength=0.05)
+    render.studio_world(scene, strength=world_strength)
     light = bpy.data.lights.new("Sphere", "POINT")
     light.energy = 300.0
     light.shadow_soft_size = 0.05
@@ -46,7 +59,7 @@ def plate_scene(render, im, S, *, res=(128, 96), spp=64, layer=True, route="lobe
     lo.location = (0.3, 1.6, 1.2)
     bpy.context.view_layer.update()
     if layer:
-        im.insert_layer(mat, S, route=route, scene=scene, samples=samples, candidates=candidates)
+        im.insert_layer(mat, S, route=route, scene=scene, samples=samples, candidates=candidates, **layer_kw)
     render.add_plane(scene, size=2.0, material=mat)
     render.add_camera(scene, location=(0.0, -2.2, 1.6), target=(0.0, 0.1, 0.0), lens=40.0)
     render.configure_cycles(scene, samples=spp, res=res, seed=seed, osl=True, max_bounces=4)
@@ -55,10 +68,9 @@ def plate_scene(render, im, S, *, res=(128, 96), spp=64, layer=True, route="lobe
 
 def main(argv) -> int:
     from bench._util import out_path
-    from bench.iridescence_cycles import _setup
 
     quick = "--quick" in argv
-    render, im = _setup()
+    render, im = setup()
     S = plate_scratches(im)
     res = (160, 120) if quick else (480, 360)
     spp = 32 if quick else 128

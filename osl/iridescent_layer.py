@@ -39,7 +39,10 @@ Two routes (``route``):
   result is radiance, returned as ``emission()``: Cycles' NEE never sees it (no BSDF, no double
   counting with the lights it also samples for the base), BSDF rays cannot bounce off it, and
   the material must use ``emission_sampling = 'NONE'`` so the object is not sampled as a light.
-  No shadows, no world light, no indirect light in the scratches; light edits need a rebuild.
+  Shadows (``shadows``, default on): one ``trace()`` per light and sample toward a uniformly
+  chosen point of the light (sphere: its disk facing P; polygon: area-weighted fan triangle), an
+  unbiased soft-shadow visibility estimate.  No world light, no indirect light in the scratches;
+  light edits need a rebuild.
 
 Segment selection (``candidates``, both routes): 0 = every segment listed in the shading point's
 reach-grid cell (exact; cost ∝ scratch density).  N > 0 (default 4) = N stratified draws from the
@@ -56,6 +59,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..precompute.iridescence import energy
 from ..precompute.iridescence.layer import (LOBE_ALPHA, NS, REACH_SIGMA, LayerSpec, PolygonLightSpec, SphereLightSpec,
                                            shader_tables)
 from . import const_array, specialise
@@ -77,12 +81,15 @@ def generate(spec: LayerSpec) -> str:
                  REACH=REACH_SIGMA * spec.sigma_um, NS=NS, QBITS=int(tab["qbits"]), QMASK=(1 << tab["qbits"]) - 1,
                  NCAND=int(spec.candidates), NSTORE=nstore, KS=int(spec.samples), LOBE_ALPHA=LOBE_ALPHA,
                  GO_U=float(grid.origin[0]), GO_V=float(grid.origin[1]), CELL=float(grid.cell), NX=int(grid.nx),
-                 NY=int(grid.ny), NSPH=len(spheres), NPOLY=len(polys), ROUTE_LIGHTS=spec.route == "lights",
-                 BASE_BLEND=bool(spec.base_blend))
+                 NY=int(grid.ny), NSPH=len(spheres), NPOLY=len(polys), NLIGHT=len(spheres) + len(polys),
+                 ROUTE_LIGHTS=spec.route == "lights", BASE_BLEND=bool(spec.base_blend),
+                 BASE_PAPER=bool(spec.base_blend) and spec.base_weight == "paper",
+                 SHADOWS=spec.route == "lights" and bool(spec.shadows) and bool(lights), KNEE=energy.KNEE)
     tables = [const_array("SEG", tab["segments"]),
               const_array("CSTART", grid.start, "int", per_line=16),
               const_array("CITEMS", tab["packed"], "int", per_line=16),
-              f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};\n"]
+              f"    float LAM[3] = {{{lam[0]:.9g}, {lam[1]:.9g}, {lam[2]:.9g}}};\n",
+              "    float KL[3] = {" + ", ".join(f"{2 * np.pi / x:.9g}" for x in lam) + "};   // 2π/λ (1/µm)\n"]
     if spheres:
         tables.append(const_array("SPH", [v for L in spheres for v in (*L.center, L.radius, *L.radiance)]))
     if polys:

@@ -10,7 +10,9 @@ UV scale), so parameter changes regenerate the shader without re-drawing the scr
 Routes (see ``osl.iridescent_layer``): ``"lobes"`` (default; narrow GGX lobes, any light, shadows,
 NEE/MIS) and ``"lights"`` (closed-form sphere/polygon integrals of the scene's point lights with a
 radius and area lights, read at build time / by ``refresh_lights``; radiance via ``emission()``,
-no shadows).  Scene units: the layer works in UV; ``uv_scale_um`` is micrometres per UV unit.
+shadows by one traced ray per light).  The base is weighted per wavelength by the energy the scratches
+take from it (``precompute.iridescence.energy``).  Scene units: the layer works in UV; ``uv_scale_um`` is
+micrometres per UV unit.
 """
 from __future__ import annotations
 
@@ -223,7 +225,8 @@ def layer_node(material):
     return material.node_tree.nodes.get(NODE_NAME) if material.node_tree else None
 
 
-def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candidates=4) -> dict:
+def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candidates=4, base_weight="energy",
+                 shadows=True) -> dict:
     """Validate layer parameters (ValueError naming the parameter and its range)."""
     sigma_um = materials.check_range("sigma_um", sigma_um, 1.0, 1000.0)
     if route not in ROUTES:
@@ -233,32 +236,39 @@ def check_params(sigma_um=60.0, route="lobes", samples=1, base_blend=True, candi
     mc = layer.MAX_CANDIDATES
     if isinstance(candidates, bool) or not isinstance(candidates, int) or not 0 <= candidates <= mc:
         raise ValueError(f"candidates must be an integer in [0, {mc}] (0 = all segments in reach), got {candidates!r}")
-    return dict(sigma_um=sigma_um, route=route, samples=samples, base_blend=bool(base_blend), candidates=candidates)
+    if base_weight not in layer.BASE_WEIGHTS:
+        raise ValueError(f"base_weight must be one of {', '.join(layer.BASE_WEIGHTS)}; got {base_weight!r}")
+    return dict(sigma_um=sigma_um, route=route, samples=samples, base_blend=bool(base_blend), candidates=candidates,
+                base_weight=base_weight, shadows=bool(shadows))
 
 
 def shader_source(scratches, sigma_um=60.0, route="lobes", samples=1, base_blend=True, lights=(), name="iridescent_layer",
-                  candidates=4):
+                  candidates=4, base_weight="energy", shadows=True):
     """Generated OSL source (see ``osl.iridescent_layer.generate``)."""
     spec = layer.LayerSpec(scratches, sigma_um=sigma_um, route=route, lights=list(lights), samples=samples,
-                               base_blend=base_blend, name=name, candidates=candidates)
+                           base_blend=base_blend, name=name, candidates=candidates, base_weight=base_weight,
+                           shadows=shadows)
     return layer_gen.generate(spec)
 
 
 @checked
 def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samples=1, base_blend=True, scene=None,
-                 candidates=4):
+                 candidates=4, base_weight="energy", shadows=True):
     """Insert (or regenerate in place) the iridescent layer on ``material``; returns the script node.
 
     ``candidates``: segments visited per shading sample (0 = all in reach; N > 0 = N drawn from a
     bound and resampled, unbiased, cost independent of the scratch density); ``samples``: route-A
-    lobes per shading sample (see ``precompute.iridescence.layer.LayerSpec``).
+    lobes per shading sample (see ``precompute.iridescence.layer.LayerSpec``).  ``base_blend``: weight
+    the base by ``base_weight`` — "energy" (default: per wavelength, what the scratches take from it,
+    ``precompute.iridescence.energy``) or "paper" (eq. 6's 1 − ρ).  ``shadows``: route "lights" traces
+    toward each light (occluded lights stop lighting the scratches).
 
     ``scratches``: a ScratchSet (stored on the material) or None to use the stored one.  The
     surface closure previously linked to the Material Output becomes ``Base``.  Route "lights"
     compiles ``scene``'s (default: the context scene) lights in."""
     if not isinstance(material, bpy.types.Material):
         raise ValueError("material must be a bpy.types.Material")
-    p = check_params(sigma_um, route, samples, base_blend, candidates)
+    p = check_params(sigma_um, route, samples, base_blend, candidates, base_weight, shadows)
     if scratches is None:
         scratches = stored_scratches(material)
         if scratches is None:
@@ -356,7 +366,8 @@ def refresh_lights(scene=None) -> int:
         info = json.loads(node["scratch_iridescence"])
         if info.get("route") == "lights" and info.get("lights") != h:
             insert_layer(mat, None, sigma_um=info["sigma_um"], route="lights", samples=info["samples"],
-                         base_blend=info["base_blend"], scene=scene, candidates=info.get("candidates", 4))
+                         base_blend=info["base_blend"], scene=scene, candidates=info.get("candidates", 4),
+                         base_weight=info.get("base_weight", "energy"), shadows=info.get("shadows", True))
             n += 1
     return n
 
@@ -368,7 +379,7 @@ def _rebuild(pg, context):
         try:
             insert_layer(mat, None, sigma_um=pg.sigma_um, route=pg.route.lower(), samples=pg.samples,
                          base_blend=pg.base_blend, scene=context.scene if context else None,
-                         candidates=pg.candidates)
+                         candidates=pg.candidates, base_weight=pg.base_weight.lower(), shadows=pg.shadows)
         except (ValueError, osl_compile.OSLCompileError) as exc:
             print(f"scratch_addon: iridescent layer not rebuilt: {exc}")
 
@@ -381,14 +392,21 @@ class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):
     route: bpy.props.EnumProperty(name="Route", default="LOBES", update=compat.update(_rebuild), items=[
         ("LOBES", "Lobes (any light)", "Narrow GGX lobes: Cycles' light sampling, shadows, any light"),
         ("LIGHTS", "Closed-form lights", "Velinov's sphere/polygon integrals for the scene's point/area lights "
-                                         "(no shadows; rebuilt when lights change)")])
+                                         "(shadows by one traced ray per light; rebuilt when lights change)")])
     samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=compat.update(_rebuild))
     candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer.MAX_CANDIDATES,
                                       update=compat.update(_rebuild),
                                       description="Scratches visited per sample (0 = all in reach: exact but slow "
                                                   "on dense sets)")
     base_blend: bpy.props.BoolProperty(name="Blend Base", default=True, update=compat.update(_rebuild),
-                                       description="Scale the base material by 1 - scratch area density (eq. 6)")
+                                       description="Weight the base material by what the scratches take from it")
+    base_weight: bpy.props.EnumProperty(name="Base Weight", default="ENERGY", update=compat.update(_rebuild), items=[
+        ("ENERGY", "Energy-consistent", "Per wavelength, the energy the scratches diffract (lossless stays lossless; "
+                                        "the mirror reflection takes the complementary tint)"),
+        ("PAPER", "Paper (1 - ρ)", "Velinov et al. eq. 6: 1 - scratch area density (does not conserve energy)")])
+    shadows: bpy.props.BoolProperty(name="Shadows", default=True, update=compat.update(_rebuild),
+                                    description="Closed-form lights: occluded lights stop lighting the scratches "
+                                                "(one traced ray per light and sample)")
     count: bpy.props.IntProperty(name="Count", default=300, min=0, max=200000)
     length_min: bpy.props.FloatProperty(name="Length Min (UV)", default=0.05, min=0.0, max=1000.0)
     length_max: bpy.props.FloatProperty(name="Length Max (UV)", default=0.3, min=0.0, max=1000.0)

@@ -44,7 +44,8 @@ def _generate(pg):
 def _build(mat, context, scratches=None):
     pg = _pg(mat)
     return im.insert_layer(mat, scratches, sigma_um=pg.sigma_um, route=pg.route.lower(), samples=pg.samples,
-                           base_blend=pg.base_blend, scene=context.scene, candidates=pg.candidates)
+                           base_blend=pg.base_blend, scene=context.scene, candidates=pg.candidates,
+                           base_weight=pg.base_weight.lower(), shadows=pg.shadows)
 
 
 _ERRORS = USER_ERRORS  # a failed (re)build leaves the material as it was (im.insert_layer)
@@ -232,6 +233,12 @@ class SCRATCH_PT_iridescence(bpy.types.Panel):
         col = layout.column(align=True)
         for name in ("route", "sigma_um", "samples", "candidates", "base_blend"):
             col.prop(pg, name)
+        sub = col.column(align=True)
+        sub.active = pg.base_blend
+        sub.prop(pg, "base_weight")
+        sub = col.column(align=True)
+        sub.active = pg.route == "LIGHTS"
+        sub.prop(pg, "shadows")
         box = layout.box()
         box.label(text="Scratch set")
         col = box.column(align=True)

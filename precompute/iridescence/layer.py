@@ -20,6 +20,8 @@ from .scratch_set import cell_pairs, csr_from_pairs
 SIGMA_UM = 60.0
 RGB_WAVELENGTHS_UM = tuple(float(x) for x in _RGB)
 ROUTES = ("lobes", "lights")
+#: Base weights: energy-consistent (``precompute.iridescence.energy``) or eq. 6's (1 − ρ).
+BASE_WEIGHTS = ("energy", "paper")
 #: GGX α of the per-sample lobes (both axes): ≪ any light's angular size, ax·ay > 2e-10 (NEE works).
 LOBE_ALPHA = 1e-3
 #: Reach of a segment around the shading point, in σ (exp(−9) ≈ 1e-4 truncation, as the numpy model).
@@ -185,10 +187,12 @@ class LayerSpec:
     route: str = "lobes"
     lights: list = field(default_factory=list)
     samples: int = 1                 # route A: (segment, ξ₂) lobes per shading sample
-    base_blend: bool = True          # (1 − ρ)·Base (eq. 6) instead of Base
+    base_blend: bool = True          # weight the base (``base_weight``) instead of keeping it
     wavelengths_um: tuple = RGB_WAVELENGTHS_UM
     name: str = "iridescent_layer"
     candidates: int = 4              # 0 = exhaustive, else RIS candidates per shading sample
+    base_weight: str = "energy"      # "energy": 1 − N(E) per channel (energy.py); "paper": 1 − ρ (eq. 6)
+    shadows: bool = True             # route B: trace() visibility toward each light
 
     def validate(self) -> "LayerSpec":
         s = self.scratches
@@ -206,6 +210,8 @@ class LayerSpec:
         if (isinstance(self.candidates, bool) or not isinstance(self.candidates, (int, np.integer))
                 or not 0 <= self.candidates <= MAX_CANDIDATES):
             raise ValueError(f"candidates must be an integer in [0, {MAX_CANDIDATES}] (0 = all), got {self.candidates!r}")
+        if self.base_weight not in BASE_WEIGHTS:
+            raise ValueError(f"base_weight must be one of {', '.join(BASE_WEIGHTS)}; got {self.base_weight!r}")
         lam = np.asarray(self.wavelengths_um, float)
         if lam.shape != (3,) or np.any(lam < 0.2) or np.any(lam > 2.0):
             raise ValueError("wavelengths_um must be 3 wavelengths in [0.2, 2.0] micrometres")
@@ -256,7 +262,8 @@ def candidate_weights(spec: LayerSpec, terms: dict, grid: "ReachGrid") -> np.nda
     Bound of the segment's weight over the cell: with d = distance cell (box) ↔ segment,
     |η_s|² ≤ A_C min(2, 2L/(√π σ)) e^{−d²/σ²} (erf slope ≤ 2/√π; erfc(x) ≤ e^{−x²} off the ends) and
     ρ_m ≤ rho_coef·min(2, 2L/(√(2π) σ)) e^{−d²/2σ²}.  p = (1 − ε)·½(η-bound share + ρ-bound share)
-    + ε/n (ρ term only with ``base_blend``), so 1/p ≤ n/ε."""
+    + ε/n (ρ term only for the "paper" base weight; the energy E_m ≤ |η_s|²·Hbar_sum follows the η share),
+    so 1/p ≤ n/ε."""
     if grid.items.size == 0:
         return np.zeros(0)
     sc = float(spec.scratches.uv_scale_um)
@@ -277,7 +284,8 @@ def candidate_weights(spec: LayerSpec, terms: dict, grid: "ReachGrid") -> np.nda
         tot = np.bincount(cid, weights=b, minlength=grid.nx * grid.ny)[cid]
         return np.where(tot > 0, b / np.where(tot > 0, tot, 1.0), 1.0 / n)
 
-    p = 0.5 * (share(b_eta) + share(b_rho)) if spec.base_blend else share(b_eta)
+    paper = spec.base_blend and spec.base_weight == "paper"      # ρ estimated too (the energy is ∝ η Hbar)
+    p = 0.5 * (share(b_eta) + share(b_rho)) if paper else share(b_eta)
     return (1.0 - UNIFORM_MIX) * p + UNIFORM_MIX / n
 
 

@@ -37,6 +37,11 @@ Deviations / choices (documented, each checked by a test):
   ``α·2σ³√π l/(a₁a₂) + (1 − α)|η_s|²(x)``.  The same α-blend is applied to ρ_𝒫
   (eq. 18) with the point value of eq. 17 when ``small_footprint_correction``.
 * ρ is clamped to [0, 1] before blending (overlapping scratches).
+* Base weight (``evaluate(blend=...)``): "energy" (default) weights the base per wavelength by what
+  the scratches actually take from it, 1 − N(Σ_m |𝒟_m|²ρ̃_m F_m) — the cross term of eq. 6 that the
+  paper drops, see ``precompute.iridescence.energy`` — and the scratch term by N(E)/E (1 unless
+  overlapping scratches would scatter more than there is); "paper" is eq. 6's (1 − ρ); "none" keeps
+  the base.
 """
 from __future__ import annotations
 
@@ -46,7 +51,7 @@ import numpy as np
 from scipy import special
 
 from ..validation import finite as _finite, positive as _positive
-from . import cie
+from . import cie, energy as _energy
 from .lights import (SI_A0, SI_B0, angular_response, band_nodes, polygon_light_integral, polygon_light_integral_mc,
                      si, si_approx, sinc2_antiderivative, sphere_cone, sphere_light_integral, sphere_light_integral_mc)
 from .scratch_set import (ScratchGrid, ScratchSet, brute_force_query, build_grid, random_scratches,
@@ -61,6 +66,7 @@ __all__ = [
     "area_density_point", "contained_length", "eta_footprint", "rho_footprint",
     "footprint_reference",
     "SphereLight", "PolygonLight", "Footprint", "EvalResult", "evaluate", "scratch_brdf", "evaluate_mc",
+    "BLENDS", "pair_energy", "depth_term_angle",
     "ScratchSet", "ScratchGrid", "random_scratches", "scratches_from_polylines", "build_grid",
     "brute_force_query", "to_shader_arrays",
 ]
@@ -68,12 +74,22 @@ __all__ = [
 SIGMA_UM = 60.0
 #: RGB mode evaluates the model at one representative wavelength per channel (µm).
 RGB_WAVELENGTHS_UM = np.array([0.630, 0.532, 0.465])
+#: Base weights of ``evaluate``: energy-consistent (issue #17), eq. 6's (1 − ρ), none.
+BLENDS = ("energy", "paper", "none")
 
 
 # ----------------------------------------------------------------------------- per-scratch terms
 def depth_term(D_um, lam_um) -> np.ndarray:
     """|𝒟|² = 2 − 2 cos(4π D/λ), eq. 11 (from eq. 4).  D, λ in µm; dimensionless in [0, 4]."""
     return 2.0 - 2.0 * np.cos(4.0 * np.pi * np.asarray(D_um) / np.asarray(lam_um))
+
+
+def depth_term_angle(D_um, lam_um, cos_sum) -> np.ndarray:
+    """|𝒟|² = 2 − 2 cos(k D (cosθ_i + cosθ_o)): eq. 4 with the angle-dependent phase of Werner et al.
+    2017 (Kirchhoff's q_z = k(ω_i,z + ω_o,z) instead of eq. 4's 2k; equal at normal incidence and
+    reflection).  ``cos_sum`` = ω_i,z + ω_o,z (dimensionless, [0, 2]); D, λ in µm; in [0, 4].
+    bench/iridescence_wave.py shows where the two depart (cos_sum ≲ 1.7 for D = λ/4)."""
+    return 2.0 - 2.0 * np.cos(2.0 * np.pi * np.asarray(D_um) * np.asarray(cos_sum) / np.asarray(lam_um))
 
 
 def width_term(W_um, xi2, lam_um) -> np.ndarray:
@@ -247,11 +263,15 @@ class EvalResult:
 
     scratch : (P, C) outgoing radiance of the scratch term toward ω_o for a light of
         unit radiance, i.e. ∫_light f_r,scratch cosθ_i dω_i (dimensionless; C = 3 in
-        'rgb' mode, C = L wavelengths in 'spectral' mode).
-    rho : (P,) scratch area density used for the base blend (eq. 6/17/18), in [0, 1].
+        'rgb' mode, C = L wavelengths in 'spectral' mode), times the overlap factor N(E)/E of
+        the "energy" blend (1 unless E > ``energy.KNEE``).
+    rho : (P,) eq. 17/18's scratch area density (the "paper" blend), in [0, 1].
     rgb : (P, 3) scratch term as linear Rec.709 RGB (spectral mode: via ``precompute.iridescence.cie``).
-    total : (P, C) ``(1 − ρ)·base + scratch`` when a base was given, else None.
+    total : (P, C) ``weight·base + scratch`` when a base was given, else None.
     wavelengths_um : (C,) wavelengths the channels were evaluated at.
+    weight : (P, C) the base's weight: 1 − N(E) ("energy"), 1 − ρ ("paper") or 1 ("none").
+    energy : (P, C) E = Σ_m |𝒟_m|²ρ̃_m F_m, the energy the scratches take from the base at this view
+        before the overlap normalisation (``precompute.iridescence.energy``).
     """
 
     scratch: np.ndarray
@@ -259,6 +279,8 @@ class EvalResult:
     rgb: np.ndarray
     total: np.ndarray | None
     wavelengths_um: np.ndarray
+    weight: np.ndarray = None
+    energy: np.ndarray = None
 
 
 def _wavelengths(mode, wavelengths_um):
@@ -313,9 +335,27 @@ def _light_factor(light, x3, wo_p, phi, W, lam, sigma_um, si_mode, n_band=1):
     raise ValueError("light must be a SphereLight or PolygonLight")
 
 
+def pair_energy(eta_um2, W_um, D_um, phi, wo, lam_um, sigma_um=SIGMA_UM, exact: bool = False) -> np.ndarray:
+    """|𝒟|²ρ̃F of scratch–point pairs: the energy each scratch takes from the base (per λ).
+
+    ``eta_um2`` (K,) |η_s|² (point or footprint, µm²), ``W_um``, ``D_um``, ``phi`` (K,) width, depth
+    (µm) and orientation (radians), ``wo`` (K, 3) local view directions, ``lam_um`` (L,) → (K, L).
+    Eqs. 3, 9-11 integrated over ξ (``energy.coverage``), times the share above the horizon
+    (``energy.propagating_fraction``, ``exact`` as there).
+    """
+    W = np.asarray(W_um, float)[:, None]
+    c, s = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    wo_t = wo[:, 0:1] * c + wo[:, 1:2] * s
+    wo_b = -wo[:, 0:1] * s + wo[:, 1:2] * c
+    lam = np.asarray(lam_um, float)[None]
+    F = _energy.propagating_fraction(wo_t, wo_b, W, lam, exact)
+    return _energy.coverage(np.asarray(eta_um2)[:, None], W, sigma_um) * depth_term(np.asarray(D_um)[:, None], lam) * F
+
+
 def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None = None, footprint: Footprint | None = None,
              mode: str = "rgb", wavelengths_um=None, sigma_um: float = SIGMA_UM, si_mode: str = "exact",
-             small_footprint_correction: bool = True, n_band: int = 1, base=None) -> EvalResult:
+             small_footprint_correction: bool = True, n_band: int = 1, base=None, blend: str = "energy",
+             exact_fraction: bool = False) -> EvalResult:
     """Scratch-layer response at shading points under an area light (eqs. 6, 7, 10-18, 27-41).
 
     Parameters
@@ -333,7 +373,11 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
     sigma_um : coherence radius σ (µm).  si_mode : 'exact' or 'approx' (eq. 29).
     n_band : ξ₁ cuts through the light (1 = the paper's eq. 27; see ``band_nodes``).
     base : optional (P, C) or (P,) base-layer radiance under the same light, blended
-        as (1 − ρ)·base + scratch (eq. 6).
+        as weight·base + scratch.
+    blend : the base's weight: "energy" (default; 1 − N(E), module docstring), "paper" (eq. 6's
+        1 − ρ) or "none" (1).
+    exact_fraction : the propagating fraction F of the energy with the exact sinc² tail instead of
+        the shader's rational fit (``energy.tail_fraction``).
 
     Returns ``EvalResult`` (see its docstring): the scratch radiance per unit light
     radiance ``Σ_m |𝒲|²|𝒟|²|η_{s|𝒫}|² A_m/(A_C λ²)`` where A_m is the closed-form
@@ -341,6 +385,8 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
     """
     if not isinstance(scratches, ScratchSet):
         raise ValueError("scratches must be a ScratchSet")
+    if blend not in BLENDS:
+        raise ValueError(f"blend must be one of {', '.join(BLENDS)} (got {blend!r})")
     uv, wo = _check_points(uv, wo)
     sigma_um = float(_positive("sigma_um", sigma_um, 1e5))
     lam = _wavelengths(mode, wavelengths_um)
@@ -374,11 +420,20 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
     x3 = np.concatenate([uv[pi], np.zeros((pi.size, 1))], axis=1)
     A = _light_factor(light, x3, wo[pi], scratches.phi[sid], W, lam, sigma_um, si_mode, n_band) if pi.size else np.zeros((0, L))
     A_C = np.pi * sigma_um ** 2
-    contrib = (W ** 2)[:, None] * depth_term(scratches.depth_um[sid][:, None], lam[None]) * eta[:, None] * A \
+    D = scratches.depth_um[sid]
+    contrib = (W ** 2)[:, None] * depth_term(D[:, None], lam[None]) * eta[:, None] * A \
         / (A_C * lam[None] ** 2)
     scratch = np.zeros((P, L))
     np.add.at(scratch, pi, contrib)
     rho = np.clip(np.bincount(pi, weights=rho_pair, minlength=P), 0.0, 1.0)
+    E = np.zeros((P, L))
+    if pi.size:
+        np.add.at(E, pi, pair_energy(eta, W, D, scratches.phi[sid], wo[pi], lam, sigma_um, exact_fraction))
+    if blend == "energy":
+        N, factor = _energy.normalise(E)
+        weight, scratch = 1.0 - N, scratch * factor
+    else:
+        weight = np.broadcast_to((1.0 - rho)[:, None] if blend == "paper" else np.ones((P, 1)), (P, L)).copy()
     rgb = scratch if mode == "rgb" else cie.spectrum_to_rgb(scratch, lam)
     total = None
     if base is not None:
@@ -386,13 +441,20 @@ def evaluate(scratches: ScratchSet, uv, wo, light, *, grid: ScratchGrid | None =
         b = b[:, None] if b.ndim == 1 else b
         if b.shape not in ((P, L), (P, 1)):
             raise ValueError(f"base must have shape (P,), (P, 1) or (P, {L}) (got {b.shape})")
-        total = (1.0 - rho)[:, None] * b + scratch
-    return EvalResult(scratch, rho, rgb, total, lam)
+        total = weight * b + scratch
+    return EvalResult(scratch, rho, rgb, total, lam, weight, E)
 
 
 # ----------------------------------------------------------------------------- point BRDF and MC reference
-def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float = SIGMA_UM) -> np.ndarray:
+def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float = SIGMA_UM,
+                 phase: str = "normal") -> np.ndarray:
     """Scratch term of the SVBRDF f_r (1/sr), eqs. 1, 6, 7, 9-11 — brute force over all segments.
+
+    ``phase``: "normal" = eq. 4's |𝒟|² (the paper, the shaders); "angle" = the angle-dependent phase
+    per (ω_i, ω_o) (``depth_term_angle``; numpy only: its energy over the lobe has no closed form, so
+    the layer's base weight cannot follow it exactly; bench/iridescence_wave.py); "view" = that phase
+    at the lobe centre only (D → D ω_o,z; closed-form energy, but off at grazing views and for deep
+    scratches — the bench's "view phase" column — so the shaders do not offer it).
 
     ``uv`` (P, 2), ``wi``/``wo`` (P, 3) local unit directions, ``lam_um`` (L,) → (P, L).
     Point evaluation (finite-segment |η_s|² as in ``eta_s_sq``); for testing and
@@ -413,7 +475,15 @@ def scratch_brdf(scratches: ScratchSet, uv, wi, wo, lam_um, *, sigma_um: float =
     A_C = np.pi * sigma_um ** 2
     k = 2 * np.pi / lam
     Wm = scratches.width_um
-    f = (width_term(Wm[None, :, None], xi2[..., None], lam) * depth_term(scratches.depth_um[None, :, None], lam)
+    if phase == "normal":
+        dt = depth_term(scratches.depth_um[None, :, None], lam)
+    elif phase == "angle":
+        dt = depth_term_angle(scratches.depth_um[None, :, None], lam, (wi[:, 2] + wo[:, 2])[:, None, None])
+    elif phase == "view":
+        dt = depth_term(scratches.depth_um[None, :, None] * wo[:, 2, None, None], lam)
+    else:
+        raise ValueError(f"phase must be 'normal', 'view' or 'angle' (got {phase!r})")
+    f = (width_term(Wm[None, :, None], xi2[..., None], lam) * dt
          * eta_s_sq(s_b, sigma_um, s1, s2)[..., None] * np.exp(-(sigma_um * k * xi1[..., None]) ** 2))
     return np.where(wi[:, 2:3] > 0.0, f.sum(axis=1) / (A_C * lam ** 2), 0.0)
 

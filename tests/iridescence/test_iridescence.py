@@ -136,9 +136,17 @@ def test_evaluate_polygon_light_and_spectral_mode_finite():
 def test_base_blend_and_empty_regions():
     S, light, uv, wo = _scene()
     base = np.full((8, 3), 0.5)
-    res = evaluate(S, uv, wo, light, base=base)
+    res = evaluate(S, uv, wo, light, base=base, blend="paper")        # eq. 6
     assert np.allclose(res.total, (1 - res.rho)[:, None] * base + res.scratch)
     assert np.all((res.rho >= 0) & (res.rho <= 1)) and res.rho.max() > 0
+    en = evaluate(S, uv, wo, light, base=base)                          # default: energy-consistent
+    assert np.allclose(en.weight, 1.0 - en.energy) and en.energy.max() < 0.5      # below the knee: the model
+    assert np.allclose(en.total, en.weight * base + en.scratch) and np.array_equal(en.scratch, res.scratch)
+    assert not np.allclose(en.weight, res.weight)                       # a different base weight than eq. 6
+    no = evaluate(S, uv, wo, light, base=base, blend="none")
+    assert np.array_equal(no.total, base + no.scratch)
+    with pytest.raises(ValueError, match="blend"):
+        evaluate(S, uv, wo, light, blend="alpha")
     # far from every scratch (zero-scratch region): scratch term 0, ρ 0, total = base
     far = evaluate(S, np.array([[0.05, 0.05], [0.95, 0.9]]), wo[:2], light, base=base[:2],
                    footprint=Footprint(np.full(2, 1e-3), np.full(2, 5e-4), np.array([[1.0, 0.0]] * 2)))

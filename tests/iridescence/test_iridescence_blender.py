@@ -30,10 +30,11 @@ def irid(addon):
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("candidates, samples, spp", [(4, 4, 512), (0, 4, 128)])
-def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, samples, spp):
+@pytest.mark.parametrize("candidates, samples, spp, count", [(4, 4, 512, 150), (0, 4, 128, 300)])
+def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, samples, spp, count):
     im, _ = irid
-    S = make_scratches(im.scratch_set)
+    # 300 segments: E up to ~1 (overlap normalisation active; exact with every segment), 150: below the knee
+    S = make_scratches(im.scratch_set, count=count)
     sc, _mat, cam = flat_scene(addon.render, im, S, route="lobes", res=32, spp=spp, candidates=candidates,
                                samples=samples)
     img, _ = addon.render.render_array(sc, str(render_dir))
@@ -49,10 +50,10 @@ def test_route_a_lobes_flat_plane_matches_numpy(addon, irid, scene, render_dir, 
 
 
 @pytest.mark.render
-@pytest.mark.parametrize("candidates, spp", [(4, 256), (0, 4)])
-def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, spp):
+@pytest.mark.parametrize("candidates, spp, count", [(4, 256, 150), (0, 4, 300)])
+def test_route_b_lights_flat_plane_matches_numpy(addon, irid, scene, render_dir, candidates, spp, count):
     im, _ = irid
-    S = make_scratches(im.scratch_set)
+    S = make_scratches(im.scratch_set, count=count)      # as route A: RIS below the knee, exhaustive above
     sc, _mat, cam = flat_scene(addon.render, im, S, route="lights", res=32, spp=spp, candidates=candidates)
     img, _ = addon.render.render_array(sc, str(render_dir))
     ref = numpy_reference(ir, S, cam, 32)
@@ -201,3 +202,66 @@ def test_bad_parameters_raise_clear_errors(addon, irid, scene):
     with pytest.raises(ValueError, match="preset"):
         im.apply_preset(None, "chrome")
     assert im.layer_node(mat) is None      # nothing half-built
+
+
+def _add_occluder(render, scene, x_range, y_range, z):
+    """A horizontal opaque quad at height z (m) spanning x_range × y_range (m)."""
+    obj = render.add_plane(scene, size=1.0, name="Occluder")
+    obj.scale = (x_range[1] - x_range[0], y_range[1] - y_range[0], 1.0)
+    obj.location = (0.5 * (x_range[0] + x_range[1]), 0.5 * (y_range[0] + y_range[1]), z)
+    return obj
+
+
+@pytest.mark.render
+def test_route_b_occluded_light_casts_a_shadow(addon, irid, scene, render_dir):
+    """Issue #17 item 4: an opaque quad between the sphere light and the plane (out of the camera's view)
+    darkens route B's scratches completely; the same quad beside the light path changes nothing; with
+    shadows off the occluder is ignored (the old behaviour)."""
+    import bpy
+
+    im, _ = irid
+    S = make_scratches(im.scratch_set, count=150)
+    # The light sits at light_center() ≈ (0.25, 1.0, 1.73) m, radius 0.1; the camera sees |x| ≤ 0.15,
+    # |y| ≤ 0.18 of the plane.  At z = 0.8 every ray from there to the light crosses x ∈ [-0.1, 0.25],
+    # y ∈ [0.3, 0.65]; camera rays cross z = 0.8 at y ≈ -0.46: the quad below is never seen directly.
+    between = dict(x_range=(-0.4, 0.6), y_range=(0.05, 0.95), z=0.8)
+    beside = dict(x_range=(1.0, 2.0), y_range=(0.05, 0.95), z=0.8)
+
+    def render_with(occ, shadows=True, name="img"):
+        sc, _m, _c = flat_scene(addon.render, im, S, route="lights", res=16, spp=4, shadows=shadows)
+        if occ is not None:
+            _add_occluder(addon.render, sc, **occ)
+            bpy.context.view_layer.update()
+        img, _ = addon.render.render_array(sc, str(render_dir), name)
+        return img
+
+    free = render_with(None, name="free")
+    assert free.mean() > 0.0                           # the scratches are lit without the occluder
+    assert render_with(between, name="between").max() == 0.0
+    np.testing.assert_allclose(render_with(beside, name="beside"), free, rtol=1e-5, atol=1e-7)
+    no_shadows = render_with(between, shadows=False, name="noshadow")
+    np.testing.assert_allclose(no_shadows, free, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.render
+@pytest.mark.parametrize("route, base_weight", [("lights", "energy"), ("lights", "paper"), ("lobes", "energy")])
+def test_base_weight_in_the_shader_matches_numpy(addon, irid, scene, render_dir, route, base_weight):
+    """The shader's base weight (1 − N(E) per channel, or eq. 6's 1 − ρ) is the numpy twin's: a unit white
+    emission as the base renders the weight itself, plus the scratch term (every segment: candidates 0).
+    300 segments reach E ≈ 1: the overlap normalisation is exercised."""
+    im, _ = irid
+    S = make_scratches(im.scratch_set, count=300)
+    sc, _m, cam = flat_scene(addon.render, im, S, route=route, base="emission", res=32,
+                             spp=16 if route == "lights" else 256, candidates=0, samples=4, base_weight=base_weight,
+                             energy=20.0)      # a dim light: the scratch term ~ the weight's size
+    img, _ = addon.render.render_array(sc, str(render_dir))
+    ref = numpy_reference(ir, S, cam, 32, energy=20.0, weight=True, blend=base_weight)
+    base_only = numpy_reference(ir, S, cam, 32, energy=20.0, weight=True, blend="none")   # weight ignored: scratch + 1
+    mean_err, block_err = errors(img, ref)
+    # exhaustive candidates: route B deterministic up to the box filter's 4 positions vs 16 (≤ 0.5 %), route A
+    # MC over lobes (256 spp x 4 lobes, the scratch part ≲ 30 % of the total: ≤ 1 %)
+    assert np.all(np.abs(mean_err) < 0.01), mean_err
+    assert block_err < 0.03, block_err
+    # and it is not the unweighted base (the weight is what is tested)
+    assert np.abs(img.mean((0, 1)) / base_only.mean((0, 1)) - 1).max() > 0.05
+

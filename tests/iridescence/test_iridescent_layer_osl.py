@@ -10,6 +10,7 @@ from hypothesis import given, settings, strategies as st
 from scipy import integrate, special
 
 from scratch_materials.osl import iridescent_layer as il
+from scratch_materials.precompute.iridescence import energy as en
 from scratch_materials.precompute.iridescence import layer as ly
 from scratch_materials.precompute.iridescence import model as ir
 from scratch_materials.precompute.iridescence.model import RGB_WAVELENGTHS_UM, SIGMA_UM
@@ -118,10 +119,11 @@ def test_segment_box_distance_matches_brute_force(seed, size):
     assert np.allclose(d, ref, atol=4.0 * 4.0 / 4000)        # sampling step of the brute force
 
 
-def _replay_candidates(spec, uv, trials, rng):
+def _replay_candidates(spec, uv, trials, rng, wo=None):
     """numpy replay of the shader's RIS candidate stage (cell lookup, stratified quanta, binary
-    search, weights 1/(NCAND p)) from the generated tables: per point the means over ``trials`` of
-    R = Σ_i w_i |η_s|²_i Hbar_sum_i and ρ̂ = Σ_i w_i ρ_i, and their standard errors."""
+    search, weights 1/(NCAND p)) from the generated tables: per point and trial
+    R = Σ_i w_i |η_s|²_i Hbar_sum_i, ρ̂ = Σ_i w_i ρ_i and (with views ``wo`` (P, 3) in the UV frame)
+    Ê = Σ_i w_i |η_s|²_i Hbar_i F_i (the energy estimate, the shader's ``energy_share``), (P, trials, 3)."""
     tab = ly.shader_tables(spec)
     g, packed, qb = tab["grid"], tab["packed"], tab["qbits"]
     seg = tab["segments"].reshape(-1, ly.NS).astype(np.float64)
@@ -133,6 +135,8 @@ def _replay_candidates(spec, uv, trials, rng):
     x = uv * spec.scratches.uv_scale_um
     R = np.zeros((uv.shape[0], trials))
     rho = np.zeros_like(R)
+    E = np.zeros(R.shape + (3,))
+    lam = np.asarray(spec.wavelengths_um, np.float32)
     ends = packed & (Q - 1)
     for i in range(uv.shape[0]):
         e = ends[c0[i]:c1[i]]
@@ -156,7 +160,13 @@ def _replay_candidates(spec, uv, trials, rng):
             R[i] += np.where(inr, w * eta * seg[m, 9], 0.0)
             rho[i] += np.where(inr, w * seg[m, 10] * e2 * (special.erf(st2 / (np.sqrt(2) * sig))
                                                          - special.erf(st1 / (np.sqrt(2) * sig))), 0.0)
-    return R, rho
+            if wo is not None:
+                ot, ob = tu * wo[i, 0] + tv * wo[i, 1], tu * wo[i, 1] - tv * wo[i, 0]
+                rr = np.sqrt(np.maximum(0.0, 1.0 - ot * ot))[:, None]
+                kW = 2 * np.pi * seg[m, 5][:, None] / lam
+                F = np.clip(1 - en.tail_fraction(kW * (rr + ob[:, None])) - en.tail_fraction(kW * (rr - ob[:, None])), 0, 1)
+                E[i] += np.where(inr, w * eta, 0.0)[:, None] * seg[m, 6:9] * F
+    return (R, rho, E) if wo is not None else (R, rho)
 
 
 @pytest.mark.parametrize("count, domain", [(1200, (0.4, 0.4, 0.6, 0.6)), (150, (0.0, 0.0, 1.0, 1.0))])
@@ -203,3 +213,40 @@ def test_candidate_distribution_is_exact_and_covers_every_listed_segment():
     assert q.min() >= 1                                      # every listed segment can be drawn
     assert np.all(tot[np.diff(g.start) > 0] == 1 << tab["qbits"])
     assert not set(range(3)) & set(g.items.tolist())
+
+
+@pytest.mark.parametrize("count, domain, th", [(1200, (0.4, 0.4, 0.6, 0.6), 60.0), (150, (0.0, 0.0, 1.0, 1.0), 10.0)])
+def test_energy_estimate_is_unbiased(count, domain, th):
+    # The shader weights the base by 1 − N(Ê) and its lobes by N(Ê)/Ê with Ê = Σ_i w_i η_i Hbar_i F_i from
+    # the RIS candidates: E[Ê] must be the numpy model's E (``evaluate(...).energy``: every segment in
+    # reach, exact erf, float64, the same rational tail).
+    S = random_scratches(count, length_range=(0.05, 0.15), domain=domain, uv_scale_um=2e4, seed=count + 1)
+    spec = ly.LayerSpec(S, candidates=4).validate()
+    rng = np.random.default_rng(2)
+    lo, hi = np.asarray(domain[:2]), np.asarray(domain[2:])
+    uv = lo + (hi - lo) * rng.random((40, 2))
+    a = rng.uniform(0, 2 * np.pi, 40)
+    t = np.radians(th)
+    wo = np.stack([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.full(40, np.cos(t))], 1)
+    _, _, E = _replay_candidates(spec, uv, 1500, rng, wo)
+    ref = ir.evaluate(S, uv, wo, ir.SphereLight(np.array([0.5, 0.5, 5.0]), 0.1)).energy
+    mean, se = E.mean(1), E.std(1) / np.sqrt(E.shape[1])
+    assert np.all(np.abs(mean - ref) <= 5 * se + 1e-4 * ref + 1e-12), np.max(np.abs(mean - ref) / (se + 1e-30))
+    assert abs(mean.sum() / ref.sum() - 1) < 0.01 and ref.max() > 0.05
+
+
+def test_shader_energy_constants_are_the_numpy_twins():
+    import re
+
+    from scratch_materials import osl
+    src = osl.read_source("iridescent_layer.osl")
+    body = re.search(r"void tail_nd\(color x, output color nu, output color de\)\s*\{(.*?)\n\}", src, re.S).group(1)
+    nums = [float(v) for v in re.findall(r"-?\d+\.\d+", body)]
+    a1, a2, b1, b2 = en.TAIL_COEF
+    assert nums == [0.0, 1.0, a1, a2, 2.0, b1, b2, a2]             # max(x, 0.0), then the rational
+    assert f"#define KNEE {en.KNEE}" in src
+    gen = il.generate(ly.LayerSpec(random_scratches(5, seed=1)))
+    assert f"#define KNEE {en.KNEE}" in gen and "#define BASE_PAPER 0" in gen
+    assert "#define BASE_PAPER 1" in il.generate(ly.LayerSpec(random_scratches(5, seed=1), base_weight="paper"))
+    with pytest.raises(ValueError, match="base_weight"):
+        il.generate(ly.LayerSpec(random_scratches(5, seed=1), base_weight="alpha"))
