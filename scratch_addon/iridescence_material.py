@@ -24,7 +24,7 @@ import numpy as np
 from ..osl import iridescent_layer as layer_gen
 from ..precompute.iridescence import layer
 from ..precompute.iridescence import scratch_set
-from . import materials, osl_compile, render_paths
+from . import compat, materials, osl_compile, render_paths
 
 
 NODE_NAME = "Iridescent Scratch Layer"
@@ -369,17 +369,17 @@ class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):
     """Parameters of the iridescent scratch layer (Material.scratch_iridescence)."""
 
     sigma_um: bpy.props.FloatProperty(name="Coherence Radius (µm)", default=60.0, min=1.0, max=1000.0,
-                                      description="Coherence radius σ of the scratch model", update=_rebuild)
-    route: bpy.props.EnumProperty(name="Route", default="LOBES", update=_rebuild, items=[
+                                      description="Coherence radius σ of the scratch model", update=compat.update(_rebuild))
+    route: bpy.props.EnumProperty(name="Route", default="LOBES", update=compat.update(_rebuild), items=[
         ("LOBES", "Lobes (any light)", "Narrow GGX lobes: Cycles' light sampling, shadows, any light"),
         ("LIGHTS", "Closed-form lights", "Velinov's sphere/polygon integrals for the scene's point/area lights "
                                          "(no shadows; rebuilt when lights change)")])
-    samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=_rebuild)
+    samples: bpy.props.IntProperty(name="Lobes per Sample", default=1, min=1, max=32, update=compat.update(_rebuild))
     candidates: bpy.props.IntProperty(name="Candidates", default=4, min=0, max=layer.MAX_CANDIDATES,
-                                      update=_rebuild,
+                                      update=compat.update(_rebuild),
                                       description="Scratches visited per sample (0 = all in reach: exact but slow "
                                                   "on dense sets)")
-    base_blend: bpy.props.BoolProperty(name="Blend Base", default=True, update=_rebuild,
+    base_blend: bpy.props.BoolProperty(name="Blend Base", default=True, update=compat.update(_rebuild),
                                        description="Scale the base material by 1 - scratch area density (eq. 6)")
     count: bpy.props.IntProperty(name="Count", default=300, min=0, max=200000)
     length_min: bpy.props.FloatProperty(name="Length Min (UV)", default=0.05, min=0.0, max=1000.0)

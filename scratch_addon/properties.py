@@ -31,8 +31,8 @@ BASE_ITEMS = [
 ]
 
 
-def _metal_items(_self, _context):
-    return [(k, k.title(), f"n, k of {k} at 650/550/450 nm") for k in sorted(_fresnel.PRESETS)]
+#: A static list (no items callback: see ``compat.PROPERTY_GROUP_CALLBACKS``).
+METAL_ITEMS = [(k, k.title(), f"n, k of {k} at 650/550/450 nm") for k in sorted(_fresnel.PRESETS)]
 
 
 class ScratchMaterialSettings(bpy.types.PropertyGroup):
@@ -41,7 +41,7 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
                                            description="Depth/width ratio (quartic, round) or half angle in degrees (V-groove)")
     profile_file: bpy.props.StringProperty(name="Profile File", subtype="FILE_PATH")
     fresnel_type: bpy.props.EnumProperty(name="Fresnel", items=FRESNEL_ITEMS, default="metal")
-    metal: bpy.props.EnumProperty(name="Metal", items=_metal_items)
+    metal: bpy.props.EnumProperty(name="Metal", items=METAL_ITEMS)
     ior_n: bpy.props.FloatVectorProperty(name="n", size=3, default=(2.91, 2.95, 2.65), min=0.01)
     ior_k: bpy.props.FloatVectorProperty(name="k", size=3, default=(3.09, 2.93, 2.80), min=0.0)
     ior: bpy.props.FloatProperty(name="IOR", default=1.5, min=1.0, max=4.0)

@@ -15,7 +15,7 @@ import bpy
 import numpy as np
 
 from ..node_groups import scratch_svm
-from ..osl.scratch_svbrdf import source as shader_source
+from ..osl import scratch_svbrdf
 from ..precompute.scratch import layers as scratch_layers
 from ..precompute.scratch.material import (BACKENDS, BASE_TYPES, LOBE_SHAPES, MODES, ScratchParams,  # noqa: F401
                                            fit_error, tables, validate)
@@ -137,8 +137,9 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     tab = tables(params)
     brdf, lobe_data, svm_lobes = tab["brdf"], tab["lobes"], tab["svm_lobes"]
     step(0.7)
-    src = None if params.backend == "svm" else shader_source(
-        params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+    src = None
+    if params.backend != "svm":
+        src = scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
     step(0.8)
     tree = material.node_tree
     tree.nodes.clear()

@@ -183,7 +183,7 @@ def test_generated_shader_has_only_used_features(addon, shape, rho0_array):
     kw = dict(resolution=64, slices=16, lobe_shape=shape)
 
     def compiled(**params):
-        src = sm.shader_source(sm.validate(profile=prof, **kw, **params))
+        src = sm.scratch_svbrdf.source(sm.validate(profile=prof, **kw, **params))
         oso = compile_source(src)
         return src, oso, oso_params(oso), oso_symbols(oso)
 
@@ -303,8 +303,8 @@ def test_box_lobes_match_exact_reference_and_conserve_energy(addon, scene, rende
 def test_box_lobes_only_in_the_shader_when_used(addon):
     sm = addon.scratch_material
     prof = _round_profile(addon)
-    plain = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16))
-    box = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
+    plain = sm.scratch_svbrdf.source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16))
+    box = sm.scratch_svbrdf.source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
                                        box_lobes=True))
     assert "#define JITTERED 0" in plain and "#define JITTERED 1" in box
     plain, box = _compiled_names(plain), _compiled_names(box)   # what the preprocessor kept
@@ -362,7 +362,7 @@ def test_table_lobes_white_furnace(addon, scene, render_dir, layers, lobe_mode):
 def test_table_lobes_parameters(addon):
     sm = addon.scratch_material
     prof = _round_profile(addon)
-    src = sm.shader_source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
+    src = sm.scratch_svbrdf.source(sm.validate(profile=prof, fresnel=None, layers=None, resolution=64, slices=16,
                                        lobe_shape="table"))
     assert "#define LOSSLESS 1" in src and "#define LOBE_TABLE 1" in src
     names = _compiled_names(src)                           # what the preprocessor kept
