@@ -164,7 +164,7 @@ class Conductor(Fresnel):
         c2 = c * c
         s2 = 1.0 - c2
         n2, k2 = self.n * self.n, self.k * self.k
-        t0 = n2 - k2 - s2
+        t0 = (n2 - k2 - 1.0) + c2  # = n^2 - k^2 - sin^2 without the cancellation of 1 - cos^2 near grazing
         a2b2 = np.sqrt(t0 * t0 + 4.0 * n2 * k2)
         a = np.sqrt(np.maximum(0.5 * (a2b2 + t0), 0.0))
         t1 = a2b2 + c2
