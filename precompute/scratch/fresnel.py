@@ -175,7 +175,8 @@ class Conductor(Fresnel):
         rs = np.where(den > 0, (t1 - t2) / np.where(den > 0, den, 1.0), 1.0)
         t3 = c2 * a2b2 + s2 * s2
         t4 = t2 * s2
-        rp = rs * (t3 - t4) / (t3 + t4)
+        den_p = t3 + t4  # 0 only where n^2 and k^2 underflow at normal incidence: there rp = rs
+        rp = rs * np.where(den_p > 0, (t3 - t4) / np.where(den_p > 0, den_p, 1.0), 1.0)
         return np.clip(0.5 * (rs + rp), 0.0, 1.0)
 
     def cache_key(self) -> dict:
