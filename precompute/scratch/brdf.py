@@ -150,6 +150,15 @@ def _bin_index(phi, M: int):
     return np.clip(np.floor((np.asarray(phi, np.float64) + 0.5 * np.pi) * (M / np.pi)), 0, M - 1).astype(np.intp)
 
 
+def _broadcast(**arrays):
+    """``np.broadcast_arrays`` of the named arrays, or ValueError naming them and their shapes."""
+    try:
+        return np.broadcast_arrays(*arrays.values())
+    except ValueError:
+        shapes = ", ".join(f"{k} {np.shape(v)}" for k, v in arrays.items())
+        raise ValueError(f"{', '.join(arrays)}: shapes do not broadcast together ({shapes})") from None
+
+
 def gamma_from_slices(rho0, rho_third, rho_m, *, scale=None):
     """Direct inversion of ``R_gamma(pi/3) = (2/3)^gamma`` (§4.2).
 
@@ -201,7 +210,8 @@ class ScratchBRDF:
         Directions below the horizon (|phi| > pi/2) give 0; NaN or infinite angles raise ValueError.  Multiply by
         ``delta(theta_i + theta_o) / cos(theta_o)^2`` for the 3D BRDF (module doc).
         """
-        th, po, pi_ = np.broadcast_arrays(finite("theta_o", theta_o), finite("phi_o", phi_o), finite("phi_i", phi_i))
+        th, po, pi_ = _broadcast(theta_o=finite("theta_o", theta_o), phi_o=finite("phi_o", phi_o),
+                                 phi_i=finite("phi_i", phi_i))
         M = self.resolution
         o, i = _bin_index(po, M), _bin_index(pi_, M)
         g = self.gamma[o, i].astype(np.float64)
@@ -238,7 +248,7 @@ class ScratchBRDF:
 
     def pdf(self, phi_o, phi_i) -> np.ndarray:
         """Density (per radian of phi_i) of ``sample`` for view ``phi_o``: ``rho_m cos(phi_i) / norm``."""
-        po, pi_ = np.broadcast_arrays(finite("phi_o", phi_o), finite("phi_i", phi_i))
+        po, pi_ = _broadcast(phi_o=finite("phi_o", phi_o), phi_i=finite("phi_i", phi_i))
         M = self.resolution
         cdf = self.cdf
         o, i = _bin_index(po, M), _bin_index(pi_, M)
@@ -252,7 +262,7 @@ class ScratchBRDF:
 
         NaN or infinite angles, and ``u`` outside [0, 1], raise ValueError (``u = 1`` is read as the
         largest float below 1)."""
-        po, u = np.broadcast_arrays(finite("phi_o", phi_o), in_range("u", u, 0.0, 1.0))
+        po, u = _broadcast(phi_o=finite("phi_o", phi_o), u=in_range("u", u, 0.0, 1.0))
         M = self.resolution
         cdf = self.cdf
         o = _bin_index(po, M)

@@ -152,6 +152,8 @@ def proposal(w_m, w_0=None):
             raise ValueError(f"w_0 must be [S, M, C] closure weights >= 0 with [S, M] = {p.shape}; got shape {w0.shape}")
         p = p + w0.mean(-1)
     cum = np.concatenate([np.zeros((p.shape[0], 1)), np.cumsum(p, 1)], 1)
+    if not np.all(np.isfinite(cum[:, -1])):
+        raise ValueError("w_m: closure weights so large that their sum overflows (expected reflectances, ~<= 1e3)")
     total = cum[:, -1]
     cdf = cum / np.where(total > 0, total, 1.0)[:, None]
     # from the last non-empty bin on the CDF is exactly 1, so no h < 1 can land in a trailing empty bin
