@@ -51,3 +51,25 @@ def check_color(name: str, value) -> tuple[float, float, float, float]:
     if len(c) not in (3, 4) or not all(0.0 <= x <= 1.0 for x in c):
         raise ValueError(f"{name} must be 3 or 4 numbers in [0, 1], got {value!r}")
     return tuple(c[:3]) + (c[3] if len(c) == 4 else 1.0,)
+
+
+def check_int(name: str, value, lo: int, hi: int) -> int:
+    """An integer (not a bool, not a float with a fraction) in [lo, hi], or ValueError naming the parameter."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        ok = isinstance(value, (float, np.floating)) and np.isfinite(value) and float(value).is_integer()
+        if not ok:
+            raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+    v = int(value)
+    if not (lo <= v <= hi):
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+    return v
+
+
+#: seeds are non-negative integers below 2**63 (numpy's SeedSequence takes any non-negative integer;
+#: the bound keeps them JSON- and int64-safe for cache keys)
+SEED_MAX = 2**63 - 1
+
+
+def check_seed(name: str, value) -> int:
+    """A random seed: an integer in [0, 2**63 - 1] (negative seeds are refused by numpy's generators)."""
+    return check_int(name, value, 0, SEED_MAX)

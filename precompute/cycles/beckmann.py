@@ -46,8 +46,12 @@ def beckmann_aniso_D(alpha_x, alpha_y, local_H):
     """
     Hs = local_H / np.stack(np.broadcast_arrays(alpha_x, alpha_y, 1.0), axis=-1)
     c2 = Hs[..., 2] ** 2
+    # as exp(-t - 2 ln c2): just above the horizon c2^2 underflows to 0 before exp(-t) does (0/0 = NaN);
+    # this form gives the limit 0.  Exactly on the horizon (c2 = 0) the value is 0 as well.
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        return np.exp(-(Hs[..., 0] ** 2 + Hs[..., 1] ** 2) / c2) / (np.pi * alpha_x * alpha_y * c2 * c2)
+        t = (Hs[..., 0] ** 2 + Hs[..., 1] ** 2) / c2
+        d = np.exp(-t - 2.0 * np.log(c2)) / (np.pi * alpha_x * alpha_y)
+    return np.where(c2 > 0, d, 0.0)
 
 
 def beckmann_lambda_from_sqr_alpha_tan_n(sqr_alpha_tan_n):

@@ -46,7 +46,10 @@ def cmf_xyz(lam_um) -> np.ndarray:
     near 0.555 µm).  Wyman, Sloan & Shirley 2013, multi-lobe fit.
     Raises ValueError for non-finite or non-positive wavelengths.
     """
-    lam = np.asarray(lam_um, dtype=np.float64)
+    try:
+        lam = np.asarray(lam_um, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"lam_um must be finite and > 0 (wavelength in micrometres), got {lam_um!r}") from None
     if not np.all(np.isfinite(lam)) or np.any(lam <= 0.0):
         raise ValueError("lam_um must be finite and > 0 (wavelength in micrometres)")
     nm = lam * 1000.0

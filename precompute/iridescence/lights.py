@@ -49,7 +49,7 @@ import numpy as np
 from scipy import special
 from scipy.stats import qmc
 
-from ..validation import finite as _finite, in_range as _in_range
+from ..validation import check_seed, finite as _finite, in_range as _in_range
 
 __all__ = [
     "si",
@@ -269,6 +269,7 @@ def sphere_light_integral(wo, light_dir, cos_alpha, phi, W, lam, sigma=60.0, si_
 def _points(n_samples: int, dim: int, seed: int, qmc_points: bool) -> np.ndarray:
     if not (isinstance(n_samples, (int, np.integer)) and 16 <= n_samples <= 1 << 24):
         raise ValueError(f"n_samples must be an integer in [16, 2**24] (got {n_samples!r})")
+    seed = check_seed("seed", seed)
     if qmc_points:
         m = int(np.ceil(np.log2(n_samples)))
         return qmc.Sobol(d=dim, scramble=True, seed=seed).random_base2(m)[:n_samples]

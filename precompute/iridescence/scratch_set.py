@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..validation import finite as _finite
+from ..validation import check_seed, finite as _finite
 
 __all__ = [
     "ScratchSet",
@@ -115,7 +115,7 @@ def random_scratches(count: int, *, length_range=(0.05, 0.3), width_range_um=(0.
         raise ValueError("orientation must be 'uniform', 'fixed' or 'von_mises'")
     if not (np.isfinite(kappa) and kappa >= 0.0):
         raise ValueError("kappa must be finite and >= 0")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed("seed", seed))
     c = dom[:2] + rng.random((count, 2)) * (dom[2:] - dom[:2])
     if orientation == "uniform":
         th = rng.random(count) * np.pi

@@ -64,7 +64,10 @@ class EllipsoidParams(NamedTuple):
 
 def _as_params(params) -> np.ndarray:
     """(..., 5) float array of validated ellipsoid parameters."""
-    p = np.asarray(params, dtype=np.float64)
+    try:
+        p = np.asarray(params, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"params: expected 5 numbers (alpha_x, alpha_y, theta_x, theta_y, theta_z), got {params!r}") from None
     if p.shape[-1:] != (5,):
         raise ValueError(f"params: expected 5 values (alpha_x, alpha_y, theta_x, theta_y, theta_z), got shape {p.shape}")
     if not np.all(np.isfinite(p)):
@@ -80,7 +83,10 @@ def _as_params(params) -> np.ndarray:
 
 def _as_dirs(m, name: str = "m") -> np.ndarray:
     """(N, 3) unit vectors; rejects non-finite or zero-length rows."""
-    v = np.asarray(m, dtype=np.float64)
+    try:
+        v = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an array of shape (N, 3) of numbers") from None
     if v.ndim != 2 or v.shape[1] != 3:
         raise ValueError(f"{name}: expected an array of shape (N, 3), got {v.shape}")
     if not np.all(np.isfinite(v)):
@@ -91,8 +97,29 @@ def _as_dirs(m, name: str = "m") -> np.ndarray:
     return v / norm
 
 
+def _as_angle(t, name: str) -> np.ndarray:
+    """A finite angle (radians, any real value: rotations are periodic) or array of them."""
+    try:
+        a = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an angle in radians (a finite number), got {t!r}") from None
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name}: must be a finite angle in radians, got {t!r}")
+    return a
+
+
+def _check_n_nodes(n_nodes) -> int:
+    """Fit-grid size: an integer in [8, 512] (the fit needs several nodes per axis; 512^2 x 16 samples is the memory cap)."""
+    if isinstance(n_nodes, (bool, np.bool_)) or not isinstance(n_nodes, (int, np.integer)) or not 8 <= n_nodes <= 512:
+        raise ValueError(f"n_nodes: expected an integer in [8, 512], got {n_nodes!r}")
+    return int(n_nodes)
+
+
 def _as_alpha(a, name: str) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
+    try:
+        a = np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must lie in [{ALPHA_MIN}, {ALPHA_MAX}], got {a!r}") from None
     if not np.all(np.isfinite(a)) or np.any(a < ALPHA_MIN) or np.any(a > ALPHA_MAX):
         raise ValueError(f"{name}: must lie in [{ALPHA_MIN}, {ALPHA_MAX}]")
     return a
@@ -229,7 +256,7 @@ def ggx_ndf(m, alpha_x, alpha_y=None, theta_z=0.0) -> np.ndarray:
     m = _as_dirs(m)
     ax = _as_alpha(alpha_x, "alpha_x")
     ay = ax if alpha_y is None else _as_alpha(alpha_y, "alpha_y")
-    mr = _rotate_z(m, theta_z)
+    mr = _rotate_z(m, _as_angle(theta_z, "theta_z"))
     q = (mr[..., 0] / ax) ** 2 + (mr[..., 1] / ay) ** 2 + mr[..., 2] ** 2
     return np.where(m[:, 2] > 0, 1.0 / (np.pi * ax * ay * q * q), 0.0)
 
@@ -243,10 +270,17 @@ def beckmann_ndf(m, alpha_x, alpha_y=None, theta_z=0.0) -> np.ndarray:
     m = _as_dirs(m)
     ax = _as_alpha(alpha_x, "alpha_x")
     ay = ax if alpha_y is None else _as_alpha(alpha_y, "alpha_y")
-    mr = _rotate_z(m, theta_z)
-    mz = np.maximum(m[:, 2], 1e-300)
-    e = (mr[..., 0] / (ax * mz)) ** 2 + (mr[..., 1] / (ay * mz)) ** 2
-    return np.where(m[:, 2] > 0, np.exp(-e) / (np.pi * ax * ay * mz**4), 0.0)
+    mr = _rotate_z(m, _as_angle(theta_z, "theta_z"))
+    return np.where(m[:, 2] > 0, _beckmann_eval(mr, ax, ay), 0.0)
+
+
+def _beckmann_eval(mr: np.ndarray, ax, ay) -> np.ndarray:
+    """``exp(-e) / (pi ax ay m_z^4)`` as ``exp(-e - 4 ln m_z) / (pi ax ay)``: just above the horizon
+    ``m_z^4`` underflows to 0 before ``exp(-e)`` does (0/0), the exponent form goes to 0 as it should."""
+    mz = np.maximum(mr[..., 2], 1e-300)
+    with np.errstate(over="ignore"):
+        e = (mr[..., 0] / (ax * mz)) ** 2 + (mr[..., 1] / (ay * mz)) ** 2
+    return np.exp(-e - 4.0 * np.log(mz)) / (np.pi * ax * ay)
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -259,6 +293,9 @@ def fit_nodes(ndf, n_nodes: int = 96, mass: float = 0.999) -> tuple[np.ndarray, 
     used, else the support is located on a 257x257 disk grid.  Returns ``(m (M,3), cell_area,
     D (M,))`` with ``M <= n_nodes**2`` and ``D`` the average of ``ndf.eval`` over each node's cell.
     """
+    n_nodes = _check_n_nodes(n_nodes)
+    if not (isinstance(mass, (int, float, np.integer, np.floating)) and 0.5 <= float(mass) < 1.0):
+        raise ValueError(f"mass: expected a fraction in [0.5, 1), got {mass!r}")
     if hasattr(ndf, "support_box"):
         x0, x1, y0, y1 = ndf.support_box(mass)
     else:
@@ -289,7 +326,13 @@ def _mass_box(x, y, w, mass):
 
 def box_nodes(eval_fn, box, n_nodes):
     """Fit nodes on ``box = (x0, x1, y0, y1)`` (padded 25 %); ``eval_fn(m)`` may return (..., M) batches."""
-    x0, x1, y0, y1 = box
+    n_nodes = _check_n_nodes(n_nodes)
+    try:
+        x0, x1, y0, y1 = (float(v) for v in box)
+    except (TypeError, ValueError):
+        raise ValueError(f"box: expected 4 numbers (x0, x1, y0, y1) in disk coordinates, got {box!r}") from None
+    if not (np.all(np.isfinite([x0, x1, y0, y1])) and -1 <= x0 <= x1 <= 1 and -1 <= y0 <= y1 <= 1):
+        raise ValueError(f"box: expected -1 <= x0 <= x1 <= 1 and -1 <= y0 <= y1 <= 1, got {box!r}")
     # pad by 25 % (and at least 0.01) so the tails are fitted too
     px, py = max(0.25 * (x1 - x0), 0.01), max(0.25 * (y1 - y0), 0.01)
     x0, x1 = max(x0 - px, -1.0), min(x1 + px, 1.0)
@@ -430,13 +473,13 @@ def fit_ellipsoid(ndf, n_nodes: int = 96) -> EllipsoidParams:
     Returns ``(alpha_x, alpha_y, theta_x, theta_y, theta_z)`` (radians); use
     :func:`fit_ellipsoid_samples` for the fit's Hellinger distance or for many tables at once.
     """
-    m, cell, d = fit_nodes(ndf, n_nodes)
+    m, cell, d = fit_nodes(ndf, _check_n_nodes(n_nodes))
     p, _ = fit_ellipsoid_samples(m, d[None], cell)
     return EllipsoidParams(*map(float, p[0]))
 
 
 def _fit_lobe(ndf, kind: str, isotropic: bool, n_nodes: int):
-    m, cell, d = fit_nodes(ndf, n_nodes)
+    m, cell, d = fit_nodes(ndf, _check_n_nodes(n_nodes))
     d = d[None]
     _, phi, a1, a2 = _moment_init(m, d)
     wc = np.sqrt(cell)
@@ -455,8 +498,7 @@ def _fit_lobe(ndf, kind: str, isotropic: bool, n_nodes: int):
         mr = _rotate_z(np.broadcast_to(m, (u.shape[0],) + m.shape), tz)
         mz = m[None, :, 2]
         if kind == "beckmann":
-            e = (mr[..., 0] / (ax * mz)) ** 2 + (mr[..., 1] / (ay * mz)) ** 2
-            return np.exp(-e) / (np.pi * ax * ay * mz**4)
+            return _beckmann_eval(mr, ax, ay)
         q = (mr[..., 0] / ax) ** 2 + (mr[..., 1] / ay) ** 2 + mz**2
         return 1.0 / (np.pi * ax * ay * q * q)
 

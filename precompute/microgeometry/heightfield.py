@@ -27,11 +27,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..validation import check_seed
+
 __all__ = ["HeightField", "load_heightfield", "save_heightfield", "HeightFieldError", "INSTRUMENT_SUFFIXES",
-           "as_heightfield", "detilt", "gaussian_surface", "spectral_slope_covariance"]
+           "as_heightfield", "detilt", "fit_plane", "Plane", "gaussian_surface", "spectral_slope_covariance",
+           "MAX_POINTS", "MAX_SIDE"]
 
 INSTRUMENT_SUFFIXES = (".sur", ".plu", ".plux", ".datx", ".x3p", ".vk4", ".vk6", ".vk7", ".sdf", ".opd", ".nms", ".gwy")
 TEXT_SUFFIXES = (".txt", ".csv", ".asc", ".dat", ".xyz")
+
+
+#: largest accepted height field: 2**25 points (e.g. 5792^2 or 8192 x 4096).  The field is kept as a float64
+#: copy (256 MiB at the limit) and every NDF streams it in tiles, so peak memory stays under 1 GiB.
+MAX_POINTS = 1 << 25
+#: largest |height| accepted (µm): squares of heights and slopes stay far from float64 overflow
+MAX_HEIGHT_UM = 1e9
+#: longest side of a synthetic test surface
+MAX_SIDE = 8192
 
 
 class HeightFieldError(ValueError):
@@ -50,15 +62,28 @@ class HeightField:
         h = np.asarray(self.heights)
         if h.dtype.kind not in "fiu":
             raise HeightFieldError(f"heights: expected a real numeric array, got dtype {h.dtype}")
-        h = np.array(h, dtype=np.float64)  # own copy
         if h.ndim != 2:
             raise HeightFieldError(f"heights: expected a 2D array, got shape {h.shape}")
         if min(h.shape) < 2:
             raise HeightFieldError(f"heights: need at least 2x2 points, got shape {h.shape}")
-        h[~np.isfinite(h)] = np.nan  # +-inf from instruments are missing points too
+        if h.size > MAX_POINTS:  # before the copy
+            raise HeightFieldError(f"heights: {h.shape[1]} x {h.shape[0]} = {h.size / 1e6:.1f} M points exceeds the "
+                                   f"{MAX_POINTS / 1e6:.1f} M-point limit (kept as float64 and streamed under 1 GiB); "
+                                   "crop the scan or split it into parts")
+        try:
+            p = float(self.pixel_um) if np.ndim(self.pixel_um) == 0 else float("nan")
+        except (TypeError, ValueError):
+            p = float("nan")
+        if not (np.isfinite(p) and 1e-6 <= p <= 1e6):
+            raise HeightFieldError(f"pixel_um: must be a finite pixel size in [1e-6, 1e6] micrometres, got {self.pixel_um!r}")
+        h = np.array(h, dtype=np.float64)  # own copy
+        np.copyto(h, np.nan, where=np.isinf(h))  # +-inf from instruments are missing points too
         if not np.any(np.isfinite(h)):
             raise HeightFieldError("heights: every point is missing (NaN)")
-        p = float(self.pixel_um) if np.ndim(self.pixel_um) == 0 else float("nan")
+        big = float(np.nanmax(np.abs(h)))
+        if big > MAX_HEIGHT_UM:
+            raise HeightFieldError(f"heights: values up to {big:.3g} µm exceed +-{MAX_HEIGHT_UM:g} µm (1 km); "
+                                   "wrong units? (height_scale converts to micrometres)")
         if not (np.isfinite(p) and 1e-6 <= p <= 1e6):
             raise HeightFieldError(f"pixel_um: must be a finite pixel size in [1e-6, 1e6] micrometres, got {self.pixel_um!r}")
         h.setflags(write=False)
@@ -106,17 +131,74 @@ def as_heightfield(heights, pixel_um=None) -> HeightField:
     return HeightField(heights, pixel_um)
 
 
-def detilt(heights: np.ndarray, pixel_um: float) -> np.ndarray:
-    """Remove the least-squares plane ``a + b x + c y`` fitted to the valid points; NaNs kept."""
-    h = np.asarray(heights, dtype=np.float64)
-    ok = np.isfinite(h)
+@dataclass(frozen=True)
+class Plane:
+    """The least-squares plane ``h = a + b (x - x0) + c (y - y0)`` through the valid points of a height
+    field (µm; ``b``, ``c`` are slopes dh/dx, dh/dy; ``x0``, ``y0`` the mean position of the valid points)."""
+
+    a: float
+    b: float
+    c: float
+    x0: float
+    y0: float
+    pixel_um: float
+
+    def values(self, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+        """The plane on rows ``y0:y1`` and columns ``x0:x1`` (pixel indices; any range, also outside the scan)."""
+        d = self.pixel_um
+        x = np.arange(x0, x1) * d - self.x0
+        y = np.arange(y0, y1) * d - self.y0
+        return (self.a + self.c * y)[:, None] + (self.b * x)[None, :]
+
+
+_ROWS = 256  # rows per chunk of the streamed plane fit (bounded temporaries on large scans)
+
+
+def fit_plane(heights: np.ndarray, pixel_um: float) -> Plane:
+    """Least-squares plane through the valid (finite) points, from streamed sums over row chunks.
+
+    Normal equations of ``a + b (x - x0) + c (y - y0)`` in centred coordinates; no ``(N, 3)`` design
+    matrix, so memory stays O(row chunk) on large scans.
+    """
+    h = np.asarray(heights)
     ny, nx = h.shape
-    y, x = np.mgrid[0:ny, 0:nx] * pixel_um
-    G = np.stack([np.ones(ok.sum()), x[ok] - x[ok].mean(), y[ok] - y[ok].mean()], -1)
-    coef, *_ = np.linalg.lstsq(G, h[ok], rcond=None)
-    out = h - coef[0] - coef[1] * (x - x[ok].mean()) - coef[2] * (y - y[ok].mean())
-    out[~ok] = np.nan
-    return out
+    d = float(pixel_um)
+    xs = np.arange(nx) * d
+    sums = np.zeros(6)  # n, sum x, sum y, sum h, then refined below
+    for r0 in range(0, ny, _ROWS):
+        blk = np.asarray(h[r0:r0 + _ROWS], np.float64)
+        ok = np.isfinite(blk)
+        y = np.arange(r0, r0 + blk.shape[0]) * d
+        cnt = ok.sum(1)
+        sums[0] += cnt.sum()
+        sums[1] += (ok * xs[None, :]).sum()
+        sums[2] += (cnt * y).sum()
+    n = sums[0]
+    if n < 3:
+        raise HeightFieldError("heights: need at least 3 measured points to fit a plane")
+    x0, y0 = sums[1] / n, sums[2] / n
+    A = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    for r0 in range(0, ny, _ROWS):
+        blk = np.asarray(h[r0:r0 + _ROWS], np.float64)
+        ok = np.isfinite(blk)
+        xc = np.broadcast_to(xs[None, :] - x0, blk.shape)[ok]
+        yc = np.broadcast_to((np.arange(r0, r0 + blk.shape[0]) * d - y0)[:, None], blk.shape)[ok]
+        hv = blk[ok]
+        A += np.array([[xc.size, xc.sum(), yc.sum()], [0, (xc * xc).sum(), (xc * yc).sum()], [0, 0, (yc * yc).sum()]])
+        rhs += np.array([hv.sum(), (xc * hv).sum(), (yc * hv).sum()])
+    A = np.triu(A) + np.triu(A, 1).T
+    coef = np.linalg.lstsq(A, rhs, rcond=None)[0]  # lstsq: a line of points (rank 2) still gets a plane
+    return Plane(float(coef[0]), float(coef[1]), float(coef[2]), float(x0), float(y0), d)
+
+
+def detilt(heights: np.ndarray, pixel_um: float) -> np.ndarray:
+    """Remove the least-squares plane ``a + b x + c y`` fitted to the valid points; NaNs kept (float64 copy)."""
+    h = np.array(heights, dtype=np.float64)
+    pl = fit_plane(h, pixel_um)
+    for r0 in range(0, h.shape[0], _ROWS):
+        h[r0:r0 + _ROWS] -= pl.values(r0, min(r0 + _ROWS, h.shape[0]), 0, h.shape[1])
+    return h
 
 
 def _pick_npz(z, path):
@@ -254,20 +336,30 @@ def gaussian_surface(shape: tuple[int, int], pixel_um: float, rms_height_um: flo
     ``rms_height_um^2`` exactly and its slope variances equal :func:`spectral_slope_covariance`
     (continuum value ``2 s^2 / l^2`` per axis when ``l >> pixel_um``).
     """
-    ny, nx = (int(v) for v in shape)
-    if ny < 2 or nx < 2:
-        raise HeightFieldError(f"shape: need at least 2x2 points, got {shape}")
-    lx, ly = np.broadcast_to(np.asarray(corr_um, dtype=np.float64), (2,))
-    if not (lx > 0 and ly > 0 and rms_height_um > 0 and pixel_um > 0):
-        raise HeightFieldError("corr_um, rms_height_um, pixel_um: must be positive")
-    kx = 2 * np.pi * np.fft.fftfreq(nx, pixel_um)
+    try:
+        ny, nx = (int(v) for v in shape)
+        lx, ly = np.broadcast_to(np.asarray(corr_um, dtype=np.float64), (2,))
+        rms_height_um, pixel_um = float(rms_height_um), float(pixel_um)
+    except (TypeError, ValueError):
+        raise HeightFieldError(f"shape, corr_um, rms_height_um, pixel_um: expected (ny, nx) integers and positive "
+                               f"numbers, got {shape!r}, {corr_um!r}, {rms_height_um!r}, {pixel_um!r}") from None
+    if not (2 <= ny <= MAX_SIDE and 2 <= nx <= MAX_SIDE):
+        raise HeightFieldError(f"shape: each side must lie in [2, {MAX_SIDE}], got {shape}")
+    vals = np.array([lx, ly, rms_height_um, pixel_um])
+    if not (np.all(np.isfinite(vals)) and np.all(vals > 0)):
+        raise HeightFieldError("corr_um, rms_height_um, pixel_um: must be positive and finite")
+    seed = check_seed("seed", seed)
+    # real FFTs of real noise (Hermitian half spectrum): the same surface as full complex FFTs, half the memory
+    kx = 2 * np.pi * np.fft.rfftfreq(nx, pixel_um)
     ky = 2 * np.pi * np.fft.fftfreq(ny, pixel_um)
-    KX, KY = np.meshgrid(kx, ky)
-    amp = np.exp(-(KX**2 * lx**2 + KY**2 * ly**2) / 8.0)  # sqrt of the PSD exp(-k^2 l^2 / 4)
-    amp[0, 0] = 0.0
     rng = np.random.default_rng(seed)
-    noise = np.fft.fft2(rng.standard_normal((ny, nx)))
-    h = np.fft.ifft2(amp * noise / np.maximum(np.abs(noise), 1e-300)).real
+    spec = np.fft.rfft2(rng.standard_normal((ny, nx)))
+    spec /= np.maximum(np.abs(spec), 1e-300)
+    spec *= np.exp(-(ky[:, None] ** 2 * ly**2) / 8.0)  # sqrt of the PSD exp(-k^2 l^2 / 4), separable
+    spec *= np.exp(-(kx[None, :] ** 2 * lx**2) / 8.0)
+    spec[0, 0] = 0.0
+    h = np.fft.irfft2(spec, (ny, nx))
+    del spec
     h *= rms_height_um / np.sqrt(np.mean(h * h))
     return HeightField(h, pixel_um, source=f"gaussian_surface(seed={seed})")
 

@@ -31,6 +31,8 @@ vertex; ``D_K`` zeroes the integrand on missing pixels and divides by the *measu
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -39,7 +41,7 @@ from scipy import fft as sfft
 from scipy.ndimage import map_coordinates
 
 from .ellipsoid import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
-from .heightfield import HeightField, as_heightfield
+from .heightfield import HeightField, Plane, as_heightfield, fit_plane
 
 __all__ = [
     "NDFTable",
@@ -61,9 +63,15 @@ __all__ = [
 # ============================================================================ table
 
 
+#: largest NDF table side: a 4097^2 float64 table is 128 MiB (a few copies stay under the 1 GiB bound)
+MAX_RESOLUTION = 4097
+
+
 def _check_resolution(resolution) -> int:
-    if not isinstance(resolution, (int, np.integer)) or resolution < 9 or resolution > 8193 or resolution % 2 == 0:
-        raise ValueError(f"resolution: must be an odd integer in [9, 8193] (node at the disk centre), got {resolution!r}")
+    if (isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer))
+            or resolution < 9 or resolution > MAX_RESOLUTION or resolution % 2 == 0):
+        raise ValueError(f"resolution: must be an odd integer in [9, {MAX_RESOLUTION}] (node at the disk centre), "
+                         f"got {resolution!r}")
     return int(resolution)
 
 
@@ -187,21 +195,131 @@ def splat_table(mx: np.ndarray, my: np.ndarray, weights: np.ndarray, resolution:
     return np.bincount(idx, val, minlength=n_batch * R * R).reshape(n_batch, R, R)
 
 
+def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
+    """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
+    sums, float64) in place, ``_SPLAT_CHUNK`` points at a time (bounded temporaries).
+
+    Per cell of the lower-left node ``(i0, j0)``: the count C and the sums X, Y, XY of tx, ty and tx ty, since
+    the four bilinear weights are ``1 - tx - ty + tx ty``, ``tx - tx ty``, ``ty - tx ty`` and ``tx ty``."""
+    sx = np.asarray(sx, np.float64).ravel()
+    sy = np.asarray(sy, np.float64).ravel()
+    h = 2.0 / (R - 1)
+    for a in range(0, sx.size, _SPLAT_CHUNK):
+        px, py = sx[a:a + _SPLAT_CHUNK], sy[a:a + _SPLAT_CHUNK]
+        s = 1.0 + px * px
+        s += py * py
+        np.sqrt(s, out=s)
+        fx = px / s       # -m_x
+        fy = py / s       # -m_y
+        keep = fx * fx + fy * fy < 1.0  # False only for slopes so steep that m_z rounds to 0
+        if not keep.all():
+            fx, fy = fx[keep], fy[keep]
+            if not fx.size:
+                continue
+        # node coordinates (m + 1) / h of m = -(fx, fy)
+        np.subtract(1.0, fx, out=fx)
+        fx /= h
+        np.clip(fx, 0, R - 1 - 1e-9, out=fx)
+        np.subtract(1.0, fy, out=fy)
+        fy /= h
+        np.clip(fy, 0, R - 1 - 1e-9, out=fy)
+        base = fy.astype(np.int64)
+        fy -= base               # ty
+        base *= R
+        i0 = fx.astype(np.int64)
+        fx -= i0                 # tx
+        base += i0
+        del i0
+        lo, hi = int(base.min()), int(base.max()) + R + 2
+        n = hi - lo
+        base -= lo
+        acc = np.bincount(base, minlength=n).astype(np.float64)
+        X = np.bincount(base, fx, minlength=n)
+        Y = np.bincount(base, fy, minlength=n)
+        fx *= fy
+        XY = np.bincount(base, fx, minlength=n)
+        del base, fx, fy
+        acc -= X
+        acc -= Y
+        acc += XY
+        X -= XY
+        Y -= XY
+        acc[1:] += X[:-1]
+        acc[R:] += Y[:-R]
+        acc[R + 1:] += XY[:-R - 1]
+        stop = min(hi, R * R)
+        flat[lo:stop] += acc[:stop - lo]
+
+
+class _SlopeBatch:
+    """Collects slopes of several tiles and splats them ``_SPLAT_POINTS`` at a time (each splat costs
+    O(points + touched nodes), so tiny batches would pay the node span again and again)."""
+
+    def __init__(self, flat: np.ndarray, R: int):
+        self.flat, self.R, self.parts, self.n = flat, R, [], 0
+
+    def add(self, sx: np.ndarray, sy: np.ndarray) -> None:
+        self.parts.append((sx, sy))
+        self.n += sx.size
+        if self.n >= _SPLAT_POINTS:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.parts:
+            _splat_slopes(self.flat, np.concatenate([p[0] for p in self.parts]),
+                          np.concatenate([p[1] for p in self.parts]), self.R)
+        self.parts, self.n = [], 0
+
+
+def _normalised_table(flat: np.ndarray, R: int, kind, info) -> NDFTable:
+    total = flat.sum()
+    if not total > 0:
+        raise ValueError("heights: no usable points (every facet/point touches missing data)")
+    h = 2.0 / (R - 1)
+    flat /= total * h * h
+    return NDFTable(flat.reshape(R, R), kind, info)
+
+
 def _table_from_slopes(sx, sy, weights, resolution, kind, info) -> NDFTable:
     """Normals of slopes ``(sx, sy) = dh/dx, dh/dy`` -> normalised table; weights = projected area."""
     s = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
     mx, my = -sx * s, -sy * s
     node_sum = splat_table(mx, my, weights, resolution)[0]
-    total = node_sum.sum()
-    if not total > 0:
-        raise ValueError("heights: no usable points (every facet/point touches missing data)")
-    h = 2.0 / (resolution - 1)
-    return NDFTable(node_sum / (total * h * h), kind, info)
+    return _normalised_table(node_sum.ravel(), resolution, kind, info)
 
 
-def _prepare(heights, pixel_um, detilt: bool) -> HeightField:
+def _prepare(heights, pixel_um, detilt: bool) -> tuple[HeightField, Plane | None]:
+    """The height field and, with ``detilt``, its least-squares plane (subtracted on the fly, no copy)."""
     hf = as_heightfield(heights, pixel_um)
-    return hf.detilted() if detilt else hf
+    return hf, (fit_plane(hf.heights, hf.pixel_um) if detilt else None)
+
+
+def _tiles(ny: int, nx: int, T: int):
+    for y0 in range(0, ny, T):
+        for x0 in range(0, nx, T):
+            yield y0, min(y0 + T, ny), x0, min(x0 + T, nx)
+
+
+def _workers() -> int:
+    return max(1, min(2, os.cpu_count() or 1))
+
+
+def _map_ordered(fn, jobs, workers: int):
+    """``fn`` over ``jobs`` on ``workers`` threads (numpy's FFTs and ufuncs release the GIL), results in job
+    order, at most ``2 * workers`` jobs in flight (bounded memory)."""
+    jobs = list(jobs)
+    if workers <= 1 or len(jobs) <= 1:
+        for j in jobs:
+            yield fn(j)
+        return
+    with ThreadPoolExecutor(workers) as ex:
+        pending = []
+        for j in jobs:
+            pending.append(ex.submit(fn, j))
+            if len(pending) >= 2 * workers:
+                yield pending.pop(0).result()
+        for f in pending:
+            yield f.result()
 
 
 # ============================================================================ naive NDF
@@ -215,23 +333,32 @@ def naive_ndf(heights, pixel_um=None, resolution: int = 1025, detilt: bool = Tru
     missing (NaN) vertex are excluded.  ``heights`` (µm) may be a :class:`HeightField`.
     """
     resolution = _check_resolution(resolution)
-    hf = _prepare(heights, pixel_um, detilt)
+    hf, plane = _prepare(heights, pixel_um, detilt)
     h, d = hf.heights, hf.pixel_um
-    h00, h10, h01, h11 = h[:-1, :-1], h[:-1, 1:], h[1:, :-1], h[1:, 1:]
-    # lower-left triangle (p00, p10, p01) and upper-right triangle (p11, p01, p10)
-    sx = np.concatenate([(h10 - h00).ravel(), (h11 - h01).ravel()]) / d
-    sy = np.concatenate([(h01 - h00).ravel(), (h11 - h10).ravel()]) / d
-    ok = np.isfinite(sx) & np.isfinite(sy)
-    return _table_from_slopes(sx[ok], sy[ok], np.ones(ok.sum()), resolution, "naive",
-                              {"pixel_um": d, "n_facets": int(ok.sum())})
+    pb, pc = (plane.b, plane.c) if plane is not None else (0.0, 0.0)
+    R = resolution
+    flat = np.zeros(R * R)
+    n_facets = 0
+    rows = max(1, _TILE_POINTS // h.shape[1])  # row bands of ~_TILE_POINTS points: bounded temporaries
+    for r0 in range(0, h.shape[0] - 1, rows):
+        b = h[r0:r0 + rows + 1]
+        h00, h10, h01, h11 = b[:-1, :-1], b[:-1, 1:], b[1:, :-1], b[1:, 1:]
+        # lower-left triangle (p00, p10, p01) and upper-right triangle (p11, p01, p10); the plane's
+        # slopes are subtracted exactly (detilting does not change a triangle's shape otherwise)
+        sx = np.concatenate([(h10 - h00).ravel(), (h11 - h01).ravel()]) / d - pb
+        sy = np.concatenate([(h01 - h00).ravel(), (h11 - h10).ravel()]) / d - pc
+        ok = np.isfinite(sx) & np.isfinite(sy)
+        n_facets += int(ok.sum())
+        _splat_slopes(flat, sx[ok], sy[ok], R)
+    return _normalised_table(flat, R, "naive", {"pixel_um": d, "n_facets": n_facets})
 
 
 # ============================================================================ filtered NDF
 
 
 @lru_cache(maxsize=8)
-def _kernel_spectra(shape_pad: tuple[int, int], sig_px: float, radius: int):
-    """rFFTs of the six separable moment kernels (flipped for correlation), cached per size."""
+def _kernel_spectra(shape_pad: tuple[int, int], sig_px: float, radius: int, dtype: str = "float64"):
+    """rFFTs of the six separable moment kernels (flipped for correlation), cached per size and precision."""
     t = np.arange(-radius, radius + 1, dtype=np.float64)
     g = np.exp(-0.5 * (t / sig_px) ** 2)
     # correlation  sum_u w(u) f(p+u) == convolution with w(-u): flip odd kernels
@@ -240,11 +367,171 @@ def _kernel_spectra(shape_pad: tuple[int, int], sig_px: float, radius: int):
         "0": np.outer(k0, k0), "x": np.outer(k0, k1), "y": np.outer(k1, k0),
         "xx": np.outer(k0, k2), "yy": np.outer(k2, k0), "xy": np.outer(k1, k1),
     }
-    return {name: sfft.rfft2(k, shape_pad) for name, k in kern.items()}
+    return {name: sfft.rfft2(k.astype(dtype), shape_pad) for name, k in kern.items()}
+
+
+def _full_window_moments(sig_px: float, radius: int) -> tuple[float, float]:
+    """``S0`` and ``Sxx = Syy`` of a window with every point measured (``Sx = Sy = Sxy = 0`` by symmetry)."""
+    t = np.arange(-radius, radius + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (t / sig_px) ** 2)
+    return float(g.sum() ** 2), float((t * t * g).sum() * g.sum())
+
+
+#: core tile side (px) of the streamed filtered NDF, points per band of the naive NDF, and the largest
+#: filter (sigma in pixels: its window is 8 sigma + 1 px wide; wider filters need a coarser scan)
+_TILE = 512
+_TILE_POINTS = 1 << 20
+_SPLAT_POINTS = 1 << 22
+_SPLAT_CHUNK = 1 << 20
+#: largest padded FFT of one Kirchhoff patch (points): ~160 bytes per point of working memory
+MAX_KIRCHHOFF_FFT = 1 << 21
+MAX_SIGMA_PX = 128.0
+
+
+def _check_sigma(sigma_um, d: float, shape) -> tuple[float, int]:
+    try:
+        sigma_um = float(sigma_um)
+    except (TypeError, ValueError):
+        raise ValueError(f"sigma_um: must be a positive filter width in micrometres, got {sigma_um!r}") from None
+    if not (np.isfinite(sigma_um) and sigma_um > 0):
+        raise ValueError(f"sigma_um: must be a positive filter width in micrometres, got {sigma_um!r}")
+    sig_px = sigma_um / d
+    if sig_px < 0.3:
+        raise ValueError(f"sigma_um: {sigma_um} µm is below 0.3 pixels ({d} µm); use naive_ndf for unfiltered normals")
+    if sig_px > MAX_SIGMA_PX:
+        raise ValueError(f"sigma_um: {sigma_um} µm is {sig_px:.0f} pixels of {d} µm; at most {MAX_SIGMA_PX:g} pixels "
+                         f"({MAX_SIGMA_PX * d:.4g} µm) are filtered (resample the scan coarser for wider filters)")
+    ny, nx = shape
+    radius = int(math.ceil(4.0 * sig_px))
+    if radius > 2 * max(ny, nx):
+        raise ValueError(f"sigma_um: {sigma_um} µm is far larger than the scan ({nx} x {ny} px of {d} µm)")
+    return sig_px, radius
+
+
+def _axis_moments(i0: int, i1: int, T: int, sig_px: float, radius: int) -> np.ndarray:
+    """1D window moments ``m_k(p) = sum_t t^k g(t) I(p + r + t)``, k = 0, 1, 2, of the indicator ``I`` of block
+    positions ``[i0, i1)`` for the ``T`` core positions p (block position ``p + r``), in float64."""
+    t = np.arange(-radius, radius + 1, dtype=np.float64)
+    g = np.exp(-0.5 * (t / sig_px) ** 2)
+    pos = np.arange(T)[:, None] + radius + t[None, :].astype(np.int64)  # [T, 2r+1] block positions
+    w = ((pos >= i0) & (pos < i1)) * g[None, :]
+    return np.stack([w.sum(1), (w * t).sum(1), (w * t * t).sum(1)])
+
+
+def _block_slopes(hf: HeightField, core, sig_px: float, radius: int, min_weight: float, dtype):
+    """Local-plane slopes (per pixel) and ok mask of the core ``(y0, y1, x0, x1)`` of ``hf``.
+
+    The block is the core plus a halo of ``radius`` pixels (outside the scan = missing), so every
+    core point sees its whole window.  The block's own least-squares plane is removed in float64
+    first and its slopes added back at the end: the FFTs (in ``dtype``) then see only the residual
+    roughness, whatever the heights' offset and tilt.  Where the block is entirely inside the scan and
+    has no missing point, the mask moments are the constants of a full window (3 FFTs instead of 11).
+    """
+    y0, y1, x0, x1 = core
+    r = radius
+    ny, nx = hf.shape
+    Ty, Tx = y1 - y0, x1 - x0
+    by0, bx0 = y0 - r, x0 - r
+    cy0, cy1, cx0, cx1 = max(by0, 0), min(y1 + r, ny), max(bx0, 0), min(x1 + r, nx)
+    sub = hf.heights[cy0:cy1, cx0:cx1]
+    valid = np.isfinite(sub)
+    inside = (cy0 == by0) and (cx0 == bx0) and (cy1 == y1 + r) and (cx1 == x1 + r)
+    full = inside and bool(valid.all())
+    pl = fit_plane(sub, 1.0) if valid.sum() >= 3 else None  # pixel units: slopes per pixel
+    H = np.zeros((Ty + 2 * r, Tx + 2 * r), dtype)
+    blk = H[cy0 - by0:cy1 - by0, cx0 - bx0:cx1 - bx0]
+    res = sub - pl.values(0, sub.shape[0], 0, sub.shape[1]) if pl is not None else sub
+    np.copyto(blk, np.where(valid, res, 0.0), casting="unsafe")
+    del res
+    shape_pad = (sfft.next_fast_len(Ty + 2 * r, real=True), sfft.next_fast_len(Tx + 2 * r, real=True))
+    K = _kernel_spectra(shape_pad, float(sig_px), r, np.dtype(dtype).name)
+    sl = (slice(2 * r, 2 * r + Ty), slice(2 * r, 2 * r + Tx))  # window centred on block point p is at p + r
+    workers = 1
+
+    def conv(F, k):
+        return sfft.irfft2(F * K[k], shape_pad, workers=workers)[sl].astype(np.float64)
+
+    FH = sfft.rfft2(H, shape_pad, workers=workers)
+    del H
+    full_w = 2 * np.pi * sig_px**2  # ~ sum of the full kernel
+    full_det = full_w**3 * sig_px**4  # det of the unmasked interior normal matrix
+    core_valid = valid[y0 - cy0:y0 - cy0 + Ty, x0 - cx0:x0 - cx0 + Tx]
+    if full:
+        S0, Sxx = _full_window_moments(sig_px, r)
+        b, c = conv(FH, "x") / Sxx, conv(FH, "y") / Sxx
+        good = S0 > min_weight * full_w and S0 * Sxx * Sxx > 1e-6 * full_det
+        ok = core_valid & good
+    else:
+        if valid.all():
+            # the measured points of the block are a rectangle (the scan's border cuts it): the mask
+            # moments are outer products of 1D window moments along y and x, no FFT needed
+            my = _axis_moments(cy0 - by0, cy1 - by0, Ty, sig_px, r)
+            mx = _axis_moments(cx0 - bx0, cx1 - bx0, Tx, sig_px, r)
+            S0, Sx, Sy = np.outer(my[0], mx[0]), np.outer(my[0], mx[1]), np.outer(my[1], mx[0])
+            Sxx, Syy, Sxy = np.outer(my[0], mx[2]), np.outer(my[2], mx[0]), np.outer(my[1], mx[1])
+        else:
+            M = np.zeros((Ty + 2 * r, Tx + 2 * r), dtype)
+            M[cy0 - by0:cy1 - by0, cx0 - bx0:cx1 - bx0] = valid
+            FM = sfft.rfft2(M, shape_pad, workers=workers)
+            del M
+            # moments in pixel units (u in px)
+            S0, Sx, Sy = conv(FM, "0"), conv(FM, "x"), conv(FM, "y")
+            Sxx, Syy, Sxy = conv(FM, "xx"), conv(FM, "yy"), conv(FM, "xy")
+            del FM
+        H0, Hx, Hy = conv(FH, "0"), conv(FH, "x"), conv(FH, "y")
+        # solve [[S0,Sx,Sy],[Sx,Sxx,Sxy],[Sy,Sxy,Syy]] [a,b,c] = [H0,Hx,Hy] for b, c (Cramer, float64)
+        c00 = Sxx * Syy - Sxy * Sxy
+        c01 = Sxy * Sy - Sx * Syy
+        c02 = Sx * Sxy - Sxx * Sy
+        det = S0 * c00 + Sx * c01 + Sy * c02
+        dd = np.where(det != 0, det, 1)
+        b = (S0 * (Hx * Syy - Sxy * Hy) - H0 * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Hy - Hx * Sy)) / dd
+        c = (S0 * (Sxx * Hy - Hx * Sxy) - Sx * (Sx * Hy - Hx * Sy) + H0 * (Sx * Sxy - Sxx * Sy)) / dd
+        ok = core_valid & (S0 > min_weight * full_w) & (det > 1e-6 * full_det)
+    if pl is not None:
+        b += pl.b
+        c += pl.c
+    return b, c, ok
+
+
+def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype):
+    """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted)."""
+    d = hf.pixel_um
+    sig_px, radius = _check_sigma(sigma_um, d, hf.shape)
+    if not (isinstance(min_weight, (int, float, np.integer, np.floating)) and 0.0 <= float(min_weight) < 1.0):
+        raise ValueError(f"min_weight: expected a fraction in [0, 1), got {min_weight!r}")
+    try:
+        border_sigmas = float(border_sigmas)
+    except (TypeError, ValueError):
+        border_sigmas = float("nan")
+    if not (np.isfinite(border_sigmas) and border_sigmas >= 0):
+        raise ValueError(f"border_sigmas: expected a number of sigmas >= 0, got {border_sigmas!r}")
+    ny, nx = hf.shape
+    nb = int(math.ceil(border_sigmas * sig_px)) if border_sigmas > 0 else 0
+    if nb and 2 * nb >= min(ny, nx):
+        raise ValueError(f"border_sigmas: {border_sigmas} sigma leaves no interior in a {nx} x {ny} px scan")
+    pb, pc = (plane.b, plane.c) if plane is not None else (0.0, 0.0)
+    if tile is None:
+        T = max(ny, nx)
+    else:
+        T = int(max(tile, 4 * radius))  # tiles at least as wide as the filter's window
+
+    def job(core):
+        b, c, ok = _block_slopes(hf, core, sig_px, radius, min_weight, dtype)
+        y0, y1, x0, x1 = core
+        if nb:
+            yy = np.arange(y0, y1)[:, None]
+            xx = np.arange(x0, x1)[None, :]
+            ok &= (yy >= nb) & (yy < ny - nb) & (xx >= nb) & (xx < nx - nb)
+        return core, b / d - pb, c / d - pc, ok
+
+    workers = 1 if tile is None else _workers()
+    yield from _map_ordered(job, _tiles(ny, nx, T), workers)
 
 
 def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool = True,
-                    min_weight: float = 0.05, border_sigmas: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    min_weight: float = 0.05, border_sigmas: float = 0.0, *, tile: int | None = _TILE,
+                    dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Slopes of the Gaussian-weighted least-squares plane at every data point (§5.1).
 
     At each measured point ``p`` solve ``min_{a,b,c} sum_u w(u) M(p+u) (h(p+u) - a - b u_x - c u_y)^2``
@@ -255,70 +542,50 @@ def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool 
     full kernel, or a near-singular normal matrix).  ``border_sigmas > 0`` also drops points closer
     than that many sigma to the scan border (their one-sided windows smooth less, which widens
     the NDF slightly; the paper keeps every point, which is the default).
+
+    Streaming: the scan is processed in ``tile`` x ``tile`` cores (plus the window's halo), each with
+    its own least-squares plane removed in float64, so the FFTs run in ``dtype`` (float32 by default:
+    the slopes agree with the float64 whole-field result to ~1e-6 of their spread, see the tests) with
+    memory O(tile^2).  ``tile=None, dtype=np.float64`` is the whole-field float64 computation.
     """
-    hf = _prepare(heights, pixel_um, detilt)
-    if not (np.isfinite(sigma_um) and sigma_um > 0):
-        raise ValueError(f"sigma_um: must be a positive filter width in micrometres, got {sigma_um!r}")
-    d = hf.pixel_um
-    sig_px = sigma_um / d
-    if sig_px < 0.3:
-        raise ValueError(f"sigma_um: {sigma_um} µm is below 0.3 pixels ({d} µm); use naive_ndf for unfiltered normals")
+    hf, plane = _prepare(heights, pixel_um, detilt)
     ny, nx = hf.shape
-    radius = int(math.ceil(4.0 * sig_px))
-    if radius > 2 * max(ny, nx):
-        raise ValueError(f"sigma_um: {sigma_um} µm is far larger than the scan ({nx} x {ny} px of {d} µm)")
-    M = hf.valid.astype(np.float64)
-    hc = np.where(hf.valid, hf.heights - np.nanmean(hf.heights), 0.0)
-    shape_pad = (sfft.next_fast_len(ny + 2 * radius, real=True), sfft.next_fast_len(nx + 2 * radius, real=True))
-    K = _kernel_spectra(shape_pad, float(sig_px), radius)
-    FM = sfft.rfft2(M, shape_pad)
-    FH = sfft.rfft2(hc, shape_pad)
-    sl = (slice(radius, radius + ny), slice(radius, radius + nx))
-
-    def conv(F, k):
-        return sfft.irfft2(F * K[k], shape_pad)[sl]
-
-    # moments in pixel units (u in px)
-    S0, Sx, Sy = conv(FM, "0"), conv(FM, "x"), conv(FM, "y")
-    Sxx, Syy, Sxy = conv(FM, "xx"), conv(FM, "yy"), conv(FM, "xy")
-    H0, Hx, Hy = conv(FH, "0"), conv(FH, "x"), conv(FH, "y")
-    # solve [[S0,Sx,Sy],[Sx,Sxx,Sxy],[Sy,Sxy,Syy]] [a,b,c] = [H0,Hx,Hy] for b, c (Cramer)
-    c00 = Sxx * Syy - Sxy * Sxy
-    c01 = Sxy * Sy - Sx * Syy
-    c02 = Sx * Sxy - Sxx * Sy
-    det = S0 * c00 + Sx * c01 + Sy * c02
-    # b = det([[S0,H0,Sy],[Sx,Hx,Sxy],[Sy,Hy,Syy]]) / det
-    b = (S0 * (Hx * Syy - Sxy * Hy) - H0 * (Sx * Syy - Sxy * Sy) + Sy * (Sx * Hy - Hx * Sy)) / np.where(det != 0, det, 1)
-    c = (S0 * (Sxx * Hy - Hx * Sxy) - Sx * (Sx * Hy - Hx * Sy) + H0 * (Sx * Sxy - Sxx * Sy)) / np.where(det != 0, det, 1)
-    full = 2 * np.pi * sig_px**2  # ~ sum of the full kernel
-    full_det = full**3 * sig_px**4  # det of the unmasked interior normal matrix
-    ok = hf.valid & (S0 > min_weight * full) & (det > 1e-6 * full_det)
-    if border_sigmas > 0:
-        nb = int(math.ceil(border_sigmas * sig_px))
-        if 2 * nb >= min(ny, nx):
-            raise ValueError(f"border_sigmas: {border_sigmas} sigma leaves no interior in a {nx} x {ny} px scan")
-        inner = np.zeros_like(ok)
-        inner[nb:ny - nb, nb:nx - nb] = True
-        ok &= inner
-    return np.where(ok, b / d, 0.0), np.where(ok, c / d, 0.0), ok
+    sx = np.zeros((ny, nx))
+    sy = np.zeros((ny, nx))
+    ok = np.zeros((ny, nx), bool)
+    for (y0, y1, x0, x1), b, c, k in _filtered_tiles(hf, plane, sigma_um, min_weight, border_sigmas, tile, dtype):
+        sx[y0:y1, x0:x1] = np.where(k, b, 0.0)
+        sy[y0:y1, x0:x1] = np.where(k, c, 0.0)
+        ok[y0:y1, x0:x1] = k
+    return sx, sy, ok
 
 
 def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int = 1025,
-                 detilt: bool = True, border_sigmas: float = 0.0) -> NDFTable:
+                 detilt: bool = True, border_sigmas: float = 0.0, *, tile: int | None = _TILE,
+                 dtype=np.float32) -> NDFTable:
     """Filtered geometric NDF (§5.1): histogram of the normals of Gaussian-weighted local plane fits.
 
     Every well-conditioned measured point contributes its pixel area (projected-area weighting,
     so the normalised table is ``D(m)`` per steradian).  ``heights`` in µm (array or
     :class:`HeightField`), ``pixel_um`` and ``sigma_um`` (default 1 µm as in the paper) in µm.
-    ``border_sigmas``: see :func:`filtered_slopes` (0 = every point, as in the paper).
+    ``border_sigmas``: see :func:`filtered_slopes` (0 = every point, as in the paper).  The slopes are
+    computed and splatted tile by tile (``tile``, ``dtype``: see :func:`filtered_slopes`), so memory
+    stays bounded (a 4096^2 scan: ~0.5 GiB peak including its float64 copy).
     """
     resolution = _check_resolution(resolution)
-    hf = _prepare(heights, pixel_um, detilt)
-    sx, sy, ok = filtered_slopes(hf, None, sigma_um, detilt=False, border_sigmas=border_sigmas)
-    if not ok.any():
+    hf, plane = _prepare(heights, pixel_um, detilt)
+    R = resolution
+    flat = np.zeros(R * R)
+    n = 0
+    batch = _SlopeBatch(flat, R)
+    for _, b, c, ok in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype):
+        n += int(ok.sum())
+        batch.add(b[ok], c[ok])
+    batch.flush()
+    if n == 0:
         raise ValueError("heights: no point has a well-conditioned local plane fit (too many missing points?)")
-    return _table_from_slopes(sx[ok], sy[ok], np.ones(ok.sum()), resolution, "filtered",
-                              {"pixel_um": hf.pixel_um, "sigma_um": float(sigma_um), "n_points": int(ok.sum())})
+    return _normalised_table(flat, R, "filtered",
+                             {"pixel_um": hf.pixel_um, "sigma_um": float(sigma_um), "n_points": n})
 
 
 # ============================================================================ Kirchhoff
@@ -332,7 +599,16 @@ def _kirchhoff_field(heights: np.ndarray, d: float):
     return w.astype(np.float64), np.where(w, gx, 0.0), np.where(w, gy, 0.0), np.where(w, h, 0.0)
 
 
+def _num(name: str, value) -> float:
+    """``value`` as a float (NaN if it is not a number: the caller's range check then names ``name``)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 def _check_wavelength(wavelength_um):
+    wavelength_um = _num("wavelength_um", wavelength_um)
     if not (np.isfinite(wavelength_um) and 1e-3 <= wavelength_um <= 1e3):
         raise ValueError(f"wavelength_um: must be a wavelength in [1e-3, 1e3] micrometres, got {wavelength_um!r}")
     return float(wavelength_um)
@@ -413,6 +689,7 @@ def kirchhoff_integral_fft(heights, pixel_um, k: float, pad: int = 2, max_theta:
     d = float(pixel_um)
     if not (isinstance(pad, (int, np.integer)) and 1 <= pad <= 8):
         raise ValueError(f"pad: must be an integer zero-padding factor in [1, 8], got {pad!r}")
+    k, tol = _num("k", k), _num("tol", tol)
     if not (np.isfinite(k) and k > 0):
         raise ValueError(f"k: must be a positive wavenumber |q| in rad/µm, got {k!r}")
     if not (np.isfinite(tol) and 0 < tol < 1):
@@ -426,13 +703,17 @@ def kirchhoff_integral_fft(heights, pixel_um, k: float, pad: int = 2, max_theta:
     hc = np.where(w > 0, h - mid, 0.0)  # centred; the phase exp(-i q_z mid) is restored at the end
     H = max(0.5 * (hv.max() - hv.min()), 1e-12)
     Py, Px = sfft.next_fast_len(pad * ny), sfft.next_fast_len(pad * nx)
-    qx = 2 * np.pi * sfft.fftshift(sfft.fftfreq(Px, d))
-    qy = 2 * np.pi * sfft.fftshift(sfft.fftfreq(Py, d))
-    QX, QY = np.meshgrid(qx, qy)
-    rho2 = QX**2 + QY**2
+    if Py * Px > MAX_KIRCHHOFF_FFT:
+        raise ValueError(f"heights: a {nx} x {ny} px patch padded {pad}x needs {Px} x {Py} FFTs; at most "
+                         f"{MAX_KIRCHHOFF_FFT / 2**20:g} M points per patch FFT (~{MAX_KIRCHHOFF_FFT * 160 / 2**30:.1f} GiB)"
+                         " -- use a smaller patch_um or pad, or a coarser scan")
+    qx_u = 2 * np.pi * sfft.fftfreq(Px, d)  # unshifted FFT order; the output is shifted at the end
+    qy_u = 2 * np.pi * sfft.fftfreq(Py, d)
+    rho2 = qy_u[:, None] ** 2 + qx_u[None, :] ** 2
     cos_min = math.cos(max_theta) if max_theta is not None else 0.0
     computed = rho2 <= (k * k) * (1.0 - cos_min**2)
     QZ = np.sqrt(np.maximum(k * k - rho2, 0.0))
+    del rho2
     qz_lo = max(k * cos_min, float(QZ[computed].min()) if computed.any() else k)
     edges, N = _plan_levels(qz_lo, k, H, tol)
     I = np.zeros((Py, Px), np.complex128)
@@ -441,21 +722,22 @@ def kirchhoff_integral_fft(heights, pixel_um, k: float, pad: int = 2, max_theta:
         sel = computed & (QZ >= lo) & ((QZ < hi) if j < len(edges) - 2 else (QZ <= hi))
         if not sel.any():
             continue
+        iy, ix = np.nonzero(sel)
+        del sel
+        qz, qxs, qys = QZ[iy, ix], qx_u[ix], qy_u[iy]
         c = 0.5 * (lo + hi)
-        base = w * np.exp(-1j * c * hc)
-        delta = QZ[sel] - c
-        acc = np.zeros(sel.sum(), np.complex128)
-        hn = base.copy()
+        delta = qz - c
+        acc = np.zeros(iy.size, np.complex128)
+        hn = w * np.exp(-1j * c * hc)
         coef = np.ones_like(delta, dtype=np.complex128)
         for n in range(N + 1):  # loop over Taylor orders (few)
-            F0 = sfft.fftshift(sfft.fft2(hn, (Py, Px)))[sel]
-            Fx = sfft.fftshift(sfft.fft2(hn * sx, (Py, Px)))[sel]
-            Fy = sfft.fftshift(sfft.fft2(hn * sy, (Py, Px)))[sel]
-            acc += coef * (QZ[sel] * F0 - QX[sel] * Fx - QY[sel] * Fy)
-            hn = hn * hc
+            acc += coef * qz * sfft.fft2(hn, (Py, Px))[iy, ix]
+            acc -= coef * qxs * sfft.fft2(hn * sx, (Py, Px))[iy, ix]
+            acc -= coef * qys * sfft.fft2(hn * sy, (Py, Px))[iy, ix]
+            hn *= hc
             coef = coef * (-1j * delta) / (n + 1)
-        I[sel] = acc * d * d * np.exp(-1j * QZ[sel] * mid)
-    return qx, qy, I, computed
+        I[iy, ix] = acc * d * d * np.exp(-1j * qz * mid)
+    return sfft.fftshift(qx_u), sfft.fftshift(qy_u), sfft.fftshift(I), sfft.fftshift(computed)
 
 
 def kirchhoff_patch_dk(heights, pixel_um, wavelength_um: float, pad: int = 2, max_theta: float | None = None,
@@ -495,18 +777,34 @@ def kirchhoff_ndf(heights, pixel_um=None, wavelength_um: float = 0.555, patch_um
     lam = _check_wavelength(wavelength_um)
     if nan_policy not in ("weight", "skip"):
         raise ValueError(f"nan_policy: must be 'weight' or 'skip', got {nan_policy!r}")
-    hf = _prepare(heights, pixel_um, detilt)
+    hf, plane = _prepare(heights, pixel_um, detilt)
     d = hf.pixel_um
-    pu = np.broadcast_to(np.asarray(patch_um, dtype=np.float64), (2,))
+    try:
+        pu = np.broadcast_to(np.asarray(patch_um, dtype=np.float64), (2,))
+    except (TypeError, ValueError):
+        raise ValueError(f"patch_um: must be positive patch size(s) in micrometres, got {patch_um!r}") from None
     if not np.all(np.isfinite(pu)) or np.any(pu <= 0):
         raise ValueError(f"patch_um: must be positive patch size(s) in micrometres, got {patch_um!r}")
     ny, nx = hf.shape
     px_x, px_y = (int(min(max(round(p / d), 4), n)) for p, n in zip(pu, (nx, ny)))
     if min(ny, nx) < 4:
         raise ValueError(f"heights: Kirchhoff needs at least 4x4 points, got {hf.shape}")
+    if not (isinstance(pad, (int, np.integer)) and 1 <= pad <= 8):
+        raise ValueError(f"pad: must be an integer zero-padding factor in [1, 8], got {pad!r}")
+    if sfft.next_fast_len(pad * px_y) * sfft.next_fast_len(pad * px_x) > MAX_KIRCHHOFF_FFT:
+        raise ValueError(f"patch_um: {patch_um} µm is {px_x} x {px_y} px of {d} µm; padded {pad}x that exceeds "
+                         f"{MAX_KIRCHHOFF_FFT / 2**20:g} M points per patch FFT (memory) -- use a smaller patch_um "
+                         f"(at most ~{math.isqrt(MAX_KIRCHHOFF_FFT) // pad * d:.4g} µm here) or pad")
+    if max_theta is not None:
+        try:
+            max_theta = float(max_theta)
+        except (TypeError, ValueError):
+            max_theta = float("nan")
+        if not (0.0 < max_theta <= 0.5 * np.pi):
+            raise ValueError(f"max_theta: expected None or an angle in (0, pi/2] radians, got {max_theta!r}")
     k = 4 * np.pi / lam
     if max_theta is None:
-        nd = naive_ndf(hf, None, resolution=257, detilt=False)
+        nd = naive_ndf(hf, None, resolution=257, detilt=detilt)
         X, Y = nd.grid()
         r = np.sqrt(X**2 + Y**2).ravel()
         o = np.argsort(r)
@@ -518,6 +816,8 @@ def kirchhoff_ndf(heights, pixel_um=None, wavelength_um: float = 0.555, patch_um
     for y0 in range(0, ny - px_y + 1, px_y):
         for x0 in range(0, nx - px_x + 1, px_x):
             patch = hf.heights[y0:y0 + px_y, x0:x0 + px_x]
+            if plane is not None:
+                patch = patch - plane.values(y0, y0 + px_y, x0, x0 + px_x)
             valid = np.isfinite(patch)
             if valid.sum() < 16 or (nan_policy == "skip" and not valid.all()):
                 continue

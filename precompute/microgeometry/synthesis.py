@@ -21,6 +21,7 @@ import os
 import numpy as np
 from scipy.ndimage import map_coordinates
 
+from ..validation import check_seed
 from .ellipsoid import ALPHA_MAX, ALPHA_MIN, THETA_XY_MAX, box_nodes, fit_ellipsoid_samples
 from .heightfield import as_heightfield
 from .ndf import NDFTable, filtered_slopes, splat_table
@@ -123,7 +124,7 @@ def synthesize_parameter_texture(params_x, params_y, out_shape: tuple[int, int],
     H, W = (int(v) for v in out_shape)
     if not (1 <= H <= 16384 and 1 <= W <= 16384):
         raise ValueError(f"out_shape: each size must lie in [1, 16384], got {out_shape}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed("seed", seed))
     out = np.empty((H, W, 5))
     for c in range(5):  # five independent channels (a loop over parameters, as in the paper)
         target_mean = 0.5 * (px[:, c].mean() + py[:, c].mean())

@@ -45,6 +45,7 @@ _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
 _BUCKET_SCALE = 1.0
 _SCAN_FACTOR = 1
+_VIS_ELEMS = 1 << 21  # [beam, bucket] elements per visibility batch (~6 such arrays: ~100 MB)
 
 
 @dataclass
@@ -177,7 +178,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     while beams["sample"].size:
         bounce += 1
         beams = _reflect(g, beams, fresnel, cos_scales)
-        hits, esc = _visibility(g, beams)
+        hits, esc = _visibility_batched(g, beams)
         _record(out, beams, esc, bounce, inc, phi_i, lost)  # leaving beams
         b = hits["beam"]  # beams hitting the profile again
         inside = np.bincount(beams["sample"][b], hits["width"], minlength=E)
@@ -243,6 +244,25 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     return dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
                 pid=pid, f=f, R=R, tr=tr,
                 Phi=np.where(top0, bm["P0"], bm["P1"]), Plo=np.where(top0, bm["P1"], bm["P0"]))
+
+
+def _visibility_batched(g: _Geometry, bm: dict):
+    """``_visibility`` on batches of beams whose ``[beam, bucket]`` work arrays hold at most ``_VIS_ELEMS``
+    elements (every beam is independent; the concatenated result equals one call on all beams)."""
+    n = bm["sample"].size
+    per_beam = -(-g.P // g.bucket) + g.G + 4
+    step = max(1, _VIS_ELEMS // per_beam)
+    if n <= step:
+        return _visibility(g, bm)
+    hit_parts, esc_parts = [], []
+    for a in range(0, n, step):  # a loop over batches (few)
+        h, e = _visibility(g, {k: (None if v is None else v[a:a + step]) for k, v in bm.items()})
+        h["beam"] = h["beam"] + a
+        e["beam"] = e["beam"] + a
+        hit_parts.append(h)
+        esc_parts.append(e)
+    cat = lambda parts: {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}  # noqa: E731
+    return cat(hit_parts), cat(esc_parts)
 
 
 def _visibility(g: _Geometry, bm: dict):

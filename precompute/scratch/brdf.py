@@ -70,6 +70,7 @@ phi_i of the unaccounted fraction), stored with the table.
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -79,7 +80,9 @@ import numpy as np
 
 from ..tables import cache as _cache
 from ..tables import exr_io
-from .profiles import Profile
+from ..validation import check_int, check_range, check_seed, finite, in_range
+from . import budget
+from .profiles import Profile, simplify
 from .beam import trace_exact
 from .mc import trace_mc
 
@@ -96,6 +99,8 @@ __all__ = [
     "MAX_BOUNCES",
     "MIN_ENERGY",
     "GAMMA_RANGE",
+    "SIMPLIFY_BINS",
+    "estimate_cost",
 ]
 
 VERSION = "2"
@@ -109,6 +114,12 @@ _EDGE_BINS = 2  # bins at each horizon traced _EDGE_FACTOR times finer; their ro
 _EDGE_FACTOR = 8
 _CHUNK_NODES = 64  # traced directions per part (threads take parts in turn)
 _NODES_PER_PI = 768  # default: at least this many traced sub-bins over phi_i (and K >= 2)
+_ROWS = 256  # rows per chunk of the table assembly
+#: default polyline simplification (``simulate(max_exit_error="auto")``): no first-bounce exit direction moves
+#: by more than this fraction of a table bin (pi / M); ``bench/scratch_scale.py`` reports the error it adds
+SIMPLIFY_BINS = 0.25
+#: "auto" leaves profiles of at most this many segments as they are (the analytic families' 256)
+SIMPLIFY_MIN_SEGMENTS = 512
 
 
 def default_supersample(M: int) -> int:
@@ -139,16 +150,26 @@ def _bin_index(phi, M: int):
     return np.clip(np.floor((np.asarray(phi, np.float64) + 0.5 * np.pi) * (M / np.pi)), 0, M - 1).astype(np.intp)
 
 
-def gamma_from_slices(rho0, rho_third, rho_m):
+def _broadcast(**arrays):
+    """``np.broadcast_arrays`` of the named arrays, or ValueError naming them and their shapes."""
+    try:
+        return np.broadcast_arrays(*arrays.values())
+    except ValueError:
+        shapes = ", ".join(f"{k} {np.shape(v)}" for k, v in arrays.items())
+        raise ValueError(f"{', '.join(arrays)}: shapes do not broadcast together ({shapes})") from None
+
+
+def gamma_from_slices(rho0, rho_third, rho_m, *, scale=None):
     """Direct inversion of ``R_gamma(pi/3) = (2/3)^gamma`` (§4.2).
 
     ``r = (rho(pi/3) - rho0) / (rho_m - rho0)``, ``gamma = ln r / ln(2/3)``.  Fallbacks keep gamma
     finite: where ``rho_m - rho0 <= 1e-6 rho_m`` or ``rho_m <= 1e-9 max(rho_m)`` (no theta dependence:
     any gamma gives the same value) gamma = 1; r is clipped to [1e-12, 1] and gamma to ``GAMMA_RANGE`` = [0.01, 100].
+    ``scale``: ``max(rho_m)`` of the whole table when the arrays are a part of it (row chunks).
     """
     rho0, rho_third, rho_m = (np.asarray(a, np.float64) for a in (rho0, rho_third, rho_m))
     diff = rho_m - rho0
-    scale = max(float(np.max(rho_m, initial=0.0)), 1e-300)
+    scale = max(float(np.max(rho_m, initial=0.0)) if scale is None else float(scale), 1e-300)
     ok = (diff > 1e-6 * rho_m) & (rho_m > 1e-9 * scale)
     with np.errstate(divide="ignore", invalid="ignore"):
         r = np.where(ok, (rho_third - rho0) / np.where(ok, diff, 1.0), 1.0)
@@ -186,10 +207,11 @@ class ScratchBRDF:
         """``rho_s(theta_o, phi_o, phi_i)`` by eq. 2 (radians, broadcastable arrays).
 
         Bins are read as piecewise constant; returns shape ``broadcast`` (mono) or ``broadcast + (C,)``.
-        Directions below the horizon (|phi| > pi/2) give 0.  Multiply by
+        Directions below the horizon (|phi| > pi/2) give 0; NaN or infinite angles raise ValueError.  Multiply by
         ``delta(theta_i + theta_o) / cos(theta_o)^2`` for the 3D BRDF (module doc).
         """
-        th, po, pi_ = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (theta_o, phi_o, phi_i)))
+        th, po, pi_ = _broadcast(theta_o=finite("theta_o", theta_o), phi_o=finite("phi_o", phi_o),
+                                 phi_i=finite("phi_i", phi_i))
         M = self.resolution
         o, i = _bin_index(po, M), _bin_index(pi_, M)
         g = self.gamma[o, i].astype(np.float64)
@@ -215,9 +237,9 @@ class ScratchBRDF:
     def _mono_m(self) -> np.ndarray:
         return self.rho_m if self.rho_m.ndim == 2 else self.rho_m[..., 0]
 
-    @property
+    @functools.cached_property
     def cdf(self) -> np.ndarray:
-        """Per phi_o slice, the CDF over phi_i bin edges, shape ``[M, M + 1]`` (from ``rho_m``)."""
+        """Per phi_o slice, the CDF over phi_i bin edges, shape ``[M, M + 1]`` (from ``rho_m``; computed once)."""
         mass = self._mono_m().astype(np.float64) * bin_cos_integrals(self.resolution)[None, :]
         c = np.concatenate([np.zeros((mass.shape[0], 1)), np.cumsum(mass, 1)], 1)
         tot = c[:, -1:]
@@ -226,7 +248,7 @@ class ScratchBRDF:
 
     def pdf(self, phi_o, phi_i) -> np.ndarray:
         """Density (per radian of phi_i) of ``sample`` for view ``phi_o``: ``rho_m cos(phi_i) / norm``."""
-        po, pi_ = np.broadcast_arrays(np.asarray(phi_o, np.float64), np.asarray(phi_i, np.float64))
+        po, pi_ = _broadcast(phi_o=finite("phi_o", phi_o), phi_i=finite("phi_i", phi_i))
         M = self.resolution
         cdf = self.cdf
         o, i = _bin_index(po, M), _bin_index(pi_, M)
@@ -236,8 +258,11 @@ class ScratchBRDF:
         return np.where(np.abs(pi_) <= 0.5 * np.pi, np.maximum(p, 0.0), 0.0)
 
     def sample(self, phi_o, u) -> tuple[np.ndarray, np.ndarray]:
-        """Draw phi_i for view ``phi_o`` from uniform ``u`` in [0, 1) by the inverse CDF; returns ``(phi_i, pdf)``."""
-        po, u = np.broadcast_arrays(np.asarray(phi_o, np.float64), np.asarray(u, np.float64))
+        """Draw phi_i for view ``phi_o`` from uniform ``u`` in [0, 1) by the inverse CDF; returns ``(phi_i, pdf)``.
+
+        NaN or infinite angles, and ``u`` outside [0, 1], raise ValueError (``u = 1`` is read as the
+        largest float below 1)."""
+        po, u = _broadcast(phi_o=finite("phi_o", phi_o), u=in_range("u", u, 0.0, 1.0))
         M = self.resolution
         cdf = self.cdf
         o = _bin_index(po, M)
@@ -255,9 +280,7 @@ class ScratchBRDF:
     def inverse_cdf(self, n: int | None = None) -> np.ndarray:
         """Inverse-CDF table ``[M, n]``: phi_i reached at ``u = (k + 0.5) / n`` for each phi_o slice (§5.1)."""
         M = self.resolution
-        n = M if n is None else int(n)
-        if n < 1:
-            raise ValueError(f"n: expected a positive integer, got {n}")
+        n = M if n is None else check_int("n", n, 1, 8192)
         u = (np.arange(n) + 0.5) / n
         phi_o = np.repeat(bin_centres(M)[:, None], n, 1)
         return self.sample(phi_o, np.broadcast_to(u, (M, n)))[0]
@@ -364,11 +387,15 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     integrated exactly on each piece.  Other paths (several events) get a flux linear in phi_i.
 
     Those other paths are rescaled together so that the sub-bin keeps exactly its incident energy
-    (all paths, where that is not possible).  Returns acc ``[comp, class, o, i]`` (unnormalised).
+    (all paths, where that is not possible).  Returns ``(acc, i0)``: acc ``[comp, class, o, i - i0]``
+    (unnormalised) over the phi_i bins ``i0 ..`` that the sub-bins cover.
     """
     MK = edges.size - 1
+    # the phi_i bins this part covers: its accumulator holds only those columns
+    i_lo = int(_bin_index(0.5 * (edges[0] + edges[1]), M))
+    ncol = int(_bin_index(0.5 * (edges[-2] + edges[-1]), M)) - i_lo + 1
     if recs["node"].size == 0:  # nothing leaves (e.g. a very deep groove: all light lost inside)
-        return np.zeros((recs["W"].shape[1], 3 if split else 1, M, M))
+        return np.zeros((recs["W"].shape[1], 3 if split else 1, M, ncol)), i_lo
     e = np.searchsorted(nodes, recs["node"])  # node index of every record
     pid, nb, phi_o, W, bd = recs["pid"], recs["nb"], recs["phi_o"], recs["W"], recs["bd"]
     Fr = W[:, 1:] / np.maximum(W[:, :1], 1e-300)
@@ -504,25 +531,28 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     fac = np.where(ok_other, fac, 1.0)
     fac_all = np.where(ok_all, fac_all, 1.0)
     I *= (np.where(swg, 1.0, fac[gs]) * fac_all[gs])[:, None]
-    ibin = _bin_index(0.5 * (edges[gs] + edges[gs + 1]), M)
+    ibin = _bin_index(0.5 * (edges[gs] + edges[gs + 1]), M) - i_lo
     cls = np.minimum(nb[r0][g], 3) - 1 if split else np.zeros(g.size, np.intp)
     ncls = 3 if split else 1
-    idx = (cls * M + o_bin) * M + ibin
+    idx = (cls * M + o_bin) * ncol + ibin
     nW = I.shape[1]
-    acc = np.empty((nW, ncls, M, M))
+    acc = np.empty((nW, ncls, M, ncol))
     for comp in range(nW):
-        acc[comp] = np.bincount(idx, I[:, comp], minlength=ncls * M * M).reshape(ncls, M, M)
-    return acc
+        acc[comp] = np.bincount(idx, I[:, comp], minlength=ncls * M * ncol).reshape(ncls, M, ncol)
+    return acc, i_lo
 
 
 def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: bool, max_bounces: int,
-                  workers: int = 1):
+                  workers: int = 1, part_nodes: int = _CHUNK_NODES):
     """Cosine-weighted bin averages ``acc[component, class, o, i]`` from exact beam tracing.
 
     Components: 0 = no Fresnel, then one per (Fresnel slice, channel).  Classes: bounce order
-    1, 2, >= 3 when ``split`` (else one class).  The phi_i range is cut into contiguous parts
-    traced and integrated by ``workers`` threads (numpy releases the GIL; the result does not depend
-    on the parts: every incident direction is traced on its own).  Returns (tables, lost).
+    1, 2, >= 3 when ``split`` (else one class).  The phi_i range is cut into contiguous parts of at
+    most ``part_nodes`` traced directions, traced and integrated by ``workers`` threads (numpy
+    releases the GIL; the result does not depend on the parts: every incident direction is traced on
+    its own) and added in order into one accumulator, each part into its own phi_i columns, with at
+    most ``workers`` parts in flight: memory is the accumulator plus ``workers`` parts (``budget``).
+    Returns (tables, lost).
     """
     verts = profile.periodic_vertices()
     edges = _sub_edges(M, K)
@@ -531,9 +561,11 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     # (M even), trace and integrate phi_i <= 0 only; the other half is the mirror image
     half = bool(profile.is_symmetric) and M % 2 == 0
     n = int(np.count_nonzero(edges <= 0.0)) if half else edges.size
-    # parts of ~_CHUNK_NODES traced directions: their arrays stay cache-sized (the tracer is
-    # memory-bound: 2 threads on whole-range arrays gain ~1.1x, on parts ~1.6x)
-    nparts = max(1, min(n - 1, max(int(workers), round((n - 1) / _CHUNK_NODES))))
+    # parts of ~_CHUNK_NODES traced directions (fewer when the profile has many segments): their arrays
+    # stay cache-sized (the tracer is memory-bound: 2 threads on whole-range arrays gain ~1.1x, on parts
+    # ~1.6x) and their memory bounded
+    per = int(max(1, min(_CHUNK_NODES, part_nodes)))
+    nparts = max(1, min(n - 1, max(int(workers), -(-(n - 1) // per))))
     cuts = np.linspace(0, n - 1, nparts + 1).round().astype(int)
 
     def part(ab):
@@ -541,16 +573,13 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
         recs, lost = _trace_nodes(verts, nodes[a:b + 1], fresnel, cos_scales, max_bounces)
         return _integrate(recs, edges[a:b + 1], nodes[a:b + 1], lost, M, split), lost
 
-    jobs = list(zip(cuts[:-1], cuts[1:]))
-    if len(jobs) > 1 and workers > 1:
-        with ThreadPoolExecutor(min(int(workers), len(jobs))) as ex:
-            results = list(ex.map(part, jobs))
-    else:
-        results = [part(j) for j in jobs]
-    acc = results[0][0]
-    for r in results[1:]:
-        acc += r[0]
-    lost_dom = np.concatenate([results[0][1]] + [r[1][1:] for r in results[1:]])
+    nW = 1 + len(cos_scales) * (fresnel.channels if fresnel is not None and len(cos_scales) else 0)
+    acc = np.zeros((nW, 3 if split else 1, M, M))
+    lost_parts = []
+    for (pacc, i0), lost in _ordered_map(part, list(zip(cuts[:-1], cuts[1:])), int(workers)):
+        acc[..., i0:i0 + pacc.shape[-1]] += pacc
+        lost_parts.append(lost)
+    lost_dom = np.concatenate([lost_parts[0]] + [lp[1:] for lp in lost_parts[1:]])
     if half:
         acc[..., M // 2:] = acc[..., ::-1, : M // 2][..., ::-1]
         lost_nodes = np.interp(np.abs(nodes), -nodes[:n][::-1], lost_dom[::-1])
@@ -563,8 +592,7 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     eb = min(_EDGE_BINS, M // 2)
     if eb:
         g = np.r_[0:eb, M - eb:M]
-        inner = np.ones(M, bool)
-        inner[g] = False
+        inner = slice(eb, M - eb)  # a view: no copy of the accumulator
         before = acc.sum(-2)
         acc[..., g, :] = np.swapaxes(acc[..., :, g], -1, -2)
         rest = acc[..., inner, :].sum(-2)
@@ -573,13 +601,31 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
             fac = np.where((rest > 0) & (want > 0), want / rest, 1.0)
         acc[..., inner, :] *= fac[..., None, :]
     Ck = bin_cos_integrals(M)
-    acc /= (Ck[:, None] * Ck[None, :])
+    acc /= Ck[:, None]
+    acc /= Ck[None, :]
     np.maximum(acc, 0.0, out=acc)  # rounding of cancelling integrals (~1e-14)
     # lost flux per phi_i bin: the largest over its nodes
     lost_bins = np.zeros(M)
     np.maximum.at(lost_bins, _bin_index(0.5 * (edges[:-1] + edges[1:]), M),
                   np.maximum(lost_nodes[:-1], lost_nodes[1:]))
     return acc, float(lost_bins.max(initial=0.0))
+
+
+def _ordered_map(fn, jobs, workers: int):
+    """``fn`` over ``jobs`` on ``workers`` threads, results in job order, at most ``workers`` jobs running and
+    ``workers`` finished results waiting (so memory holds at most ~2 ``workers`` parts)."""
+    if workers <= 1 or len(jobs) <= 1:
+        for j in jobs:
+            yield fn(j)
+        return
+    with ThreadPoolExecutor(workers) as ex:
+        pending = []
+        for j in jobs:
+            pending.append(ex.submit(fn, j))
+            if len(pending) > workers:
+                yield pending.pop(0).result()
+        for f in pending:
+            yield f.result()
 
 
 def _sub_edges(M: int, K: int) -> np.ndarray:
@@ -627,38 +673,190 @@ def _check_args(profile, resolution, fresnel, method, supersample, rays_per_slic
         raise ValueError(f"max_bounces: expected an integer in [1, 10000], got {max_bounces!r}")
 
 
-def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, seed, split, max_bounces, workers=1):
+def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, seed, split, max_bounces, workers=1,
+            part_nodes=_CHUNK_NODES):
     """rho_s at theta_o values (+ the lossless rho_m): returns (rho_m [M,M], rho_t [T,M,M,C] | None, bounces, lost)."""
     theta_o = np.atleast_1d(np.asarray(theta_o, np.float64))
     cos_scales = np.cos(theta_o) if fresnel is not None else np.zeros(0)
     if method == "exact":
-        acc, lost = _exact_tables(profile, M, supersample, fresnel, tuple(cos_scales), split, max_bounces, workers)
-        rho_m = acc[0].sum(0)
+        acc, lost = _exact_tables(profile, M, supersample, fresnel, tuple(cos_scales), split, max_bounces, workers,
+                                  part_nodes)
+        rho_m = acc[0].sum(0) if split else acc[0, 0]
         bounces = acc[0] if split else None
         rho_t = None
         if fresnel is not None and theta_o.size:
             C = fresnel.channels
-            rho_t = np.moveaxis(acc[1:].sum(1).reshape(theta_o.size, C, M, M), 1, -1)
+            per_slice = acc[1:].sum(1) if split else acc[1:, 0]  # a view unless split
+            rho_t = np.moveaxis(per_slice.reshape(theta_o.size, C, M, M), 1, -1)
         return rho_m, rho_t, bounces, lost
     rho_m, rho_t, lost = trace_mc(profile.periodic_vertices(), M, rays_per_slice, seed, fresnel, tuple(cos_scales),
                                   max_bounces=max_bounces)
     return rho_m, rho_t, None, float(lost.max(initial=0.0))
 
 
+def _simplified(profile: Profile, M: int, max_exit_error) -> Profile:
+    """``profile`` simplified to ``max_exit_error`` (radians; "auto" = ``SIMPLIFY_BINS`` of a bin, None/0 = off)."""
+    if isinstance(max_exit_error, str):
+        if max_exit_error != "auto":
+            raise ValueError(f"max_exit_error: expected 'auto', None or an angle in [0, pi/2] radians, "
+                             f"got {max_exit_error!r}")
+        if profile.segments <= SIMPLIFY_MIN_SEGMENTS:
+            return profile
+        tol = SIMPLIFY_BINS * np.pi / M
+    elif max_exit_error is None:
+        tol = 0.0
+    else:
+        tol = check_range("max_exit_error", max_exit_error, 0.0, 0.5 * np.pi)
+    return simplify(profile, tol)
+
+
+def _check_max_seconds(max_seconds) -> float:
+    try:
+        v = float(max_seconds)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not v > 0:  # also NaN; inf = no limit
+        raise ValueError(f"max_seconds: expected a positive number of seconds (inf = no limit), got {max_seconds!r}")
+    return v
+
+
+def _n_traced(profile: Profile, M: int, K: int) -> tuple[np.ndarray, int]:
+    edges = _sub_edges(M, K)
+    half = bool(profile.is_symmetric) and M % 2 == 0
+    return edges, (int(np.count_nonzero(edges <= 0.0)) if half else edges.size)
+
+
+def _estimate(profile: Profile, M: int, fresnel, method: str, K: int, split: bool, rays_per_slice: int,
+              max_bounces: int, workers: int, n_theta: int, max_seconds: float = np.inf) -> budget.Cost:
+    """Cost of a simulation of the (already simplified) ``profile``; probes a few directions (exact method)
+    unless a coarse estimate already exceeds the bounds."""
+    P = profile.periodic_vertices().shape[0] - 1
+    C = fresnel.channels if fresnel is not None else 1
+    nW = 1 + (n_theta * C if fresnel is not None else 0)
+    out = budget.output_bytes(M, nW, 3 if split else 1, C, split)
+    speed = budget.THREAD_SPEEDUP.get(workers, 1.6)
+    if method == "mc":
+        rays = M * int(rays_per_slice)
+        seconds = rays * 2 * P * 2.0 * budget.SECONDS_PER_RAY_SEGMENT  # ~2 intersection passes per ray
+        chunk = min(rays, _mc_chunk_rays(P, nW))
+        peak = out + chunk * (budget.BYTES_PER_RAY + 8 * nW) + min(chunk, 2_000_000 // max(1, 2 * P)) * 2 * P * 48
+        return budget.Cost(seconds, int(peak), P, M, rays, out, 0)
+    _, n = _n_traced(profile, M, K)
+    per_rec = budget.record_bytes(nW)
+    # coarse: _COARSE_RECORDS exit beams per segment per direction (an upper value of the measured 1.5-5);
+    # probe only when that is within reach and the profile is small enough for the probe to be cheap
+    # (probing a 100,000-segment profile alone takes minutes: refuse such inputs before any tracing)
+    slow = _record_slowdown(P)
+    coarse_s = n * _COARSE_RECORDS * P * budget.SECONDS_PER_RECORD * slow / speed
+    per_node_bytes = _COARSE_RECORDS * P * per_rec
+    if (P > _PROBE_MAX_SEGMENTS or coarse_s > 4 * max_seconds
+            or out + 2 * per_node_bytes > budget.MEMORY_BUDGET):
+        recs_mean = recs_max = float(_COARSE_RECORDS * P)
+    else:
+        recs_mean, recs_max = _probe(profile, M, K, max_bounces)
+    per_node_bytes = max(recs_max, 1.0) * per_rec
+    part_nodes = int(max(2, min(_CHUNK_NODES, budget.part_budget(out, workers) // max(per_node_bytes, 1))))
+    peak = out + min(workers, max(1, n // part_nodes)) * part_nodes * per_node_bytes
+    records = int(n * recs_mean)
+    return budget.Cost(records * budget.SECONDS_PER_RECORD * slow / speed, int(peak), P, n, records, out,
+                       part_nodes)
+
+
+#: exit beams per segment and traced direction assumed when the probe is skipped (measured 1.5-5)
+_COARSE_RECORDS = 5
+#: profiles with more segments are not probed (the coarse estimate decides; tracing one direction of a
+#: 100,000-segment profile takes ~30 s)
+_PROBE_MAX_SEGMENTS = 8192
+
+
+def _record_slowdown(P: int) -> float:
+    """Cost per exit beam relative to a ~1,000-segment profile: the visibility scan grows with the
+    profile (measured 1.0 / 1.5 / 2.5 / 3.9 at 500 / 2,000 / 8,000 / 32,000 segments, ~ P^(1/3))."""
+    return max(1.0, (P / 1000.0) ** (1.0 / 3.0))
+
+
+def _probe(profile: Profile, M: int, K: int, max_bounces: int, count: int = 3):
+    """Exit records per traced direction on ``count`` directions spread over the traced range: (mean, max)."""
+    edges, n = _n_traced(profile, M, K)
+    nodes = np.clip(edges[:n], -0.5 * np.pi + _EDGE_EPS, 0.5 * np.pi - _EDGE_EPS)
+    pick = np.unique(np.linspace(0.1 * n, 0.9 * n, count).astype(int).clip(0, n - 1))
+    verts = profile.periodic_vertices()
+    # the beams do not depend on Fresnel: probe without it
+    counts = [trace_exact(verts, nodes[k:k + 1], None, (), max_bounces=max_bounces,
+                          min_energy=MIN_ENERGY).sample.size for k in pick]  # a loop over few probes
+    return float(np.mean(counts)), float(np.max(counts))
+
+
+def _mc_chunk_rays(P: int, nW: int) -> int:
+    """Rays per Monte Carlo batch: their state and the [ray, segment] intersection batch stay ~64 MiB."""
+    return int(max(1024, (64 * 2**20) // (budget.BYTES_PER_RAY + 8 * nW)))
+
+
+def _check_cost(cost: budget.Cost, max_seconds: float, M: int, method: str) -> None:
+    """ValueError, before any work, when ``cost`` exceeds the memory budget or ``max_seconds``."""
+    if cost.out_bytes > budget.MEMORY_BUDGET:
+        fit = M
+        while fit > 2 and cost.out_bytes * (fit / M) ** 2 > budget.MEMORY_BUDGET:
+            fit //= 2
+        raise ValueError(f"resolution: {M} needs ~{cost.out_bytes / 2**20:.0f} MiB for its tables alone (memory "
+                         f"bound {budget.MEMORY_BUDGET / 2**20:.0f} MiB); use resolution <= {fit} for this input "
+                         "(fewer Fresnel channels or theta_o slices also help)")
+    if cost.peak_bytes > budget.MEMORY_BUDGET:
+        raise ValueError(f"profile: {cost.segments} segments need {cost.describe()}, above the memory bound "
+                         f"{budget.MEMORY_BUDGET / 2**20:.0f} MiB; simplify it (max_exit_error) or resample it")
+    if cost.seconds > max_seconds:
+        what = ("rays_per_slice or resolution" if method == "mc" else
+                "resolution, supersample or the profile's segments (max_exit_error simplifies it)")
+        raise ValueError(f"max_seconds: the simulation needs {cost.describe()}, above max_seconds={max_seconds:g}; "
+                         f"reduce {what}, or raise max_seconds")
+
+
+def estimate_cost(profile: Profile, resolution: int = 256, fresnel=None, *, method: str = "exact",
+                  supersample: int | None = None, split_bounces: bool = False, rays_per_slice: int = 10_000,
+                  max_bounces: int = MAX_BOUNCES, workers: int | None = None, max_exit_error="auto",
+                  theta_o=(0.0, THETA_FIT)) -> budget.Cost:
+    """Estimated time and peak memory of ``simulate`` with these arguments (``precompute.scratch.budget``).
+
+    The exact method traces a few probe directions of the simplified profile to count its exit beams
+    (~1 % of the work); ``simulate`` makes the same estimate and refuses inputs beyond
+    ``budget.MEMORY_BUDGET`` or ``max_seconds`` before it starts.
+    """
+    _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
+    M = int(resolution)
+    K = default_supersample(M) if supersample is None else int(supersample)
+    prof = _simplified(profile, M, max_exit_error)
+    n_theta = int(np.atleast_1d(theta_o).size)
+    return _estimate(prof, M, fresnel, method, K, bool(split_bounces), int(rays_per_slice), int(max_bounces),
+                     _workers(workers), n_theta)
+
+
 def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=None, *, method: str = "exact",
                    supersample: int | None = None, rays_per_slice: int = 10_000, seed: int = 0,
-                   max_bounces: int = MAX_BOUNCES, workers: int | None = None) -> np.ndarray:
+                   max_bounces: int = MAX_BOUNCES, workers: int | None = None, max_exit_error="auto",
+                   max_seconds: float = budget.MAX_SECONDS) -> np.ndarray:
     """Simulated ``rho_s(theta_o, phi_o, phi_i)`` for each ``theta_o`` (radians), shape ``[T, M, M, C]``.
 
     The full 3D scratch BRDF that eq. 2 approximates (§4.2, Fig. 6); ``fresnel=None`` gives rho_m.
+    ``max_exit_error``, ``max_seconds``: see ``simulate``.
     """
     _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
+    seed = check_seed("seed", seed)
+    max_seconds = _check_max_seconds(max_seconds)
     supersample = default_supersample(resolution) if supersample is None else int(supersample)
-    th = np.atleast_1d(np.asarray(theta_o, np.float64))
-    if not np.all(np.isfinite(th)) or np.any(np.abs(th) > 0.5 * np.pi):
+    try:
+        th = np.atleast_1d(np.asarray(theta_o, np.float64))
+    except (TypeError, ValueError):
+        raise ValueError(f"theta_o: expected finite angles in [-pi/2, pi/2], got {theta_o!r}") from None
+    if th.ndim != 1 or not th.size or not np.all(np.isfinite(th)) or np.any(np.abs(th) > 0.5 * np.pi):
         raise ValueError(f"theta_o: expected finite angles in [-pi/2, pi/2], got {th}")
-    rho_m, rho_t, _, _ = _slices(profile, resolution, fresnel, np.abs(th), method, supersample, rays_per_slice,
-                                 seed, False, max_bounces, _workers(workers))
+    M = int(resolution)
+    nw = _workers(workers)
+    prof = _simplified(profile, M, max_exit_error)
+    cost = _estimate(prof, M, fresnel, method, supersample, False, int(rays_per_slice), int(max_bounces), nw,
+                     th.size, max_seconds)
+    _check_cost(cost, max_seconds, M, method)
+    rho_m, rho_t, _, _ = _slices(prof, M, fresnel, np.abs(th), method, supersample, rays_per_slice,
+                                 seed, False, max_bounces, nw, cost.part_nodes or _CHUNK_NODES)
     if rho_t is None:
         return np.broadcast_to(rho_m[None, :, :, None], (th.size,) + rho_m.shape + (1,)).copy()
     return rho_t
@@ -666,40 +864,61 @@ def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=Non
 
 def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: str = "exact",
              supersample: int | None = None, split_bounces: bool = False, rays_per_slice: int = 10_000, seed: int = 0,
-             max_bounces: int = MAX_BOUNCES, cache: bool = False, workers: int | None = None) -> ScratchBRDF:
+             max_bounces: int = MAX_BOUNCES, cache: bool = False, workers: int | None = None,
+             max_exit_error="auto", max_seconds: float = budget.MAX_SECONDS) -> ScratchBRDF:
     """Simulate the scratch BRDF of ``profile`` (Raymond et al. 2016, §4.1-4.2) on an M x M grid.
 
     ``fresnel``: None (lossless mirror: ``rho0 == rho_m``, gamma = 1) or a ``precompute.fresnel`` model;
     ``method``: "exact" (beam tracing, ``supersample`` K traces per phi_i bin, None = ``default_supersample(M)``) or "mc"
     (``rays_per_slice``, ``seed``); ``split_bounces``: also return rho_m split into 1st / 2nd / >= 3rd
     bounce light (Fig. 5); ``cache``: reuse an identical earlier result from ``precompute.tables.cache``.
+
+    Bounded cost (``precompute.scratch.budget``): the polyline is first simplified (``profiles.simplify``)
+    so that no first-bounce exit direction moves by more than ``max_exit_error`` radians ("auto": profiles
+    of more than ``SIMPLIFY_MIN_SEGMENTS`` = 512 segments with ``SIMPLIFY_BINS`` = 1/4 of a table bin,
+    pi/(4M); None or 0: off) -- measured traces with thousands of points shrink to what the table resolves.  Then it estimates time and
+    memory (``estimate_cost``) and raises ValueError, before any work, if the tables alone exceed the
+    memory budget (1 GiB per process: ``resolution`` too large) or the estimate exceeds ``max_seconds``
+    (default 600 s; ``inf`` = no limit).  Memory then stays under the budget: the work streams in parts.
     """
     _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
+    seed = check_seed("seed", seed)
+    max_seconds = _check_max_seconds(max_seconds)
     supersample = default_supersample(resolution) if supersample is None else int(supersample)
     M = int(resolution)
     nw = _workers(workers)
+    prof = _simplified(profile, M, max_exit_error)
+    thetas = (0.0, THETA_FIT)
 
     def compute():
-        rho_m, rho_t, bounces, lost = _slices(profile, M, fresnel, (0.0, THETA_FIT), method, supersample,
-                                              rays_per_slice, seed, split_bounces, max_bounces, nw)
+        cost = _estimate(prof, M, fresnel, method, supersample, bool(split_bounces), int(rays_per_slice),
+                         int(max_bounces), nw, len(thetas), max_seconds)
+        _check_cost(cost, max_seconds, M, method)
+        rho_m, rho_t, bounces, lost = _slices(prof, M, fresnel, thetas, method, supersample,
+                                              rays_per_slice, seed, split_bounces, max_bounces, nw,
+                                              cost.part_nodes or _CHUNK_NODES)
         if rho_t is None:
-            rho0 = rho_m.copy()
-            gamma = np.ones_like(rho_m)
+            rho0 = rho_m.astype(np.float32)
+            gamma = np.ones(rho_m.shape, np.float32)
         else:
-            rm = rho_m[..., None]
             rho0, rho60 = rho_t[0], rho_t[1]
-            gamma = gamma_from_slices(rho0, rho60, np.broadcast_to(rm, rho0.shape))
+            gamma = np.empty(rho0.shape, np.float32)
+            scale = float(np.max(rho_m, initial=0.0))
+            for r in range(0, M, _ROWS):  # row chunks: bounded temporaries at large M
+                rm = np.broadcast_to(rho_m[r:r + _ROWS, :, None], rho0[r:r + _ROWS].shape)
+                gamma[r:r + _ROWS] = gamma_from_slices(rho0[r:r + _ROWS], rho60[r:r + _ROWS], rm, scale=scale)
+            rho0 = rho0.astype(np.float32)
             if rho0.shape[-1] == 1:
                 rho0, gamma = rho0[..., 0], gamma[..., 0]
             else:
-                rho_m = np.broadcast_to(rm, rho0.shape)
-        out = {"rho0": rho0.astype(np.float32), "rho_m": np.ascontiguousarray(rho_m, np.float32),
-               "gamma": gamma.astype(np.float32), "lost": np.array([lost], np.float32)}
+                rho_m = np.broadcast_to(rho_m[..., None], rho0.shape)
+        out = {"rho0": rho0, "rho_m": np.ascontiguousarray(rho_m, np.float32),
+               "gamma": gamma, "lost": np.array([lost], np.float32)}
         if bounces is not None:
             out["bounces"] = bounces.astype(np.float32)
         return out
 
-    inputs = {"profile": profile, "resolution": M, "fresnel": fresnel, "method": method,
+    inputs = {"profile": prof, "resolution": M, "fresnel": fresnel, "method": method,
               "supersample": int(supersample), "split_bounces": bool(split_bounces), "max_bounces": int(max_bounces)}
     if method == "mc":
         inputs.update(rays_per_slice=int(rays_per_slice), seed=int(seed))
@@ -707,7 +926,8 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
     version = VERSION + "-" + _cache.code_version(sys.modules[__name__], sys.modules[trace_exact.__module__],
                                                   sys.modules[trace_mc.__module__])
     arrays = _cache.cached_arrays("scratch_brdf", version, inputs, compute, enabled=bool(cache))
-    meta = {"profile": profile.name, "profile_params": dict(profile.params), "segments": profile.segments,
+    meta = {"profile": profile.name, "profile_params": dict(profile.params), "segments": prof.segments,
+            "profile_segments": profile.segments,
             "fresnel": None if fresnel is None else fresnel.cache_key(), "method": method,
             "supersample": int(supersample)}
     return ScratchBRDF.from_arrays(arrays, meta)

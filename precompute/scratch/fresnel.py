@@ -62,7 +62,10 @@ _ALIASES = {"aluminum": "aluminium", "fe": "iron", "au": "gold", "cu": "copper",
 
 def _channels(value, name: str, *, low: float, high: float = np.inf, low_open: bool = False) -> np.ndarray:
     """A scalar or a 3-tuple as a float64 array of 1 or 3 channels, range-checked."""
-    a = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    try:
+        a = np.atleast_1d(np.asarray(value, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number or 3 numbers (R, G, B), got {value!r}") from None
     if a.ndim != 1 or a.size not in (1, 3):
         raise ValueError(f"{name}: expected a scalar or 3 values (R, G, B), got shape {np.shape(value)}")
     if not np.all(np.isfinite(a)):
@@ -161,15 +164,19 @@ class Conductor(Fresnel):
         c2 = c * c
         s2 = 1.0 - c2
         n2, k2 = self.n * self.n, self.k * self.k
-        t0 = n2 - k2 - s2
+        t0 = (n2 - k2 - 1.0) + c2  # = n^2 - k^2 - sin^2 without the cancellation of 1 - cos^2 near grazing
         a2b2 = np.sqrt(t0 * t0 + 4.0 * n2 * k2)
         a = np.sqrt(np.maximum(0.5 * (a2b2 + t0), 0.0))
         t1 = a2b2 + c2
         t2 = 2.0 * c * a
-        rs = (t1 - t2) / (t1 + t2)
+        # t1 + t2 = 0 only at exact grazing (c = 0) with eta = 1 (n = 1, k = 0, no interface): there
+        # F takes its grazing limit 1, like every other model (the limit n -> 1 of F(cos = 0) = 1)
+        den = t1 + t2
+        rs = np.where(den > 0, (t1 - t2) / np.where(den > 0, den, 1.0), 1.0)
         t3 = c2 * a2b2 + s2 * s2
         t4 = t2 * s2
-        rp = rs * (t3 - t4) / (t3 + t4)
+        den_p = t3 + t4  # 0 only where n^2 and k^2 underflow at normal incidence: there rp = rs
+        rp = rs * np.where(den_p > 0, (t3 - t4) / np.where(den_p > 0, den_p, 1.0), 1.0)
         return np.clip(0.5 * (rs + rp), 0.0, 1.0)
 
     def cache_key(self) -> dict:
@@ -195,6 +202,10 @@ def lazanyi(n, k, *, a=0.0, alpha: float = 6.0) -> Lazanyi:
     n = _channels(n, "n", low=0.0, high=1e3, low_open=True)
     k = _channels(k, "k", low=0.0, high=1e3)
     a = _channels(a, "a", low=0.0, high=1e3)
+    try:
+        alpha = float(alpha)
+    except (TypeError, ValueError):
+        raise ValueError(f"alpha: expected one number in (0, 100], got {alpha!r}") from None
     if not (np.isfinite(alpha) and 0.0 < alpha <= 100.0):
         raise ValueError(f"alpha: allowed range is (0, 100], got {alpha!r}")
     _same_channels(n=n, k=k, a=a)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..validation import check_seed
+
 __all__ = ["LayerParams", "layer_transforms", "mean_coverage", "COVERAGE_D", "coverage_table", "PAPER_TABLE1",
            "merged_layers", "voronoi_f1", "layer_indicator"]
 
@@ -113,7 +115,7 @@ def mean_coverage(d, samples: int = 400_000, seed: int = 1) -> np.ndarray:
     d = np.asarray(d, dtype=np.float64)
     if np.any(~np.isfinite(d)) or np.any(d < 0):
         raise ValueError("density d must be finite and >= 0")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed("seed", seed))
     f1 = _f1_unit_jittered_grid(rng.random((samples, 2)), rng.random((samples, 9, 2)))
     f1.sort()
     return np.searchsorted(f1, d, side="right") / samples

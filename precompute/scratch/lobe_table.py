@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..cycles.ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
+from ..validation import check_int, check_range, finite
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
 
 __all__ = ["bin_atoms", "fit_bins", "default_width", "proposal", "sample_bins", "model", "box_albedo"]
@@ -38,8 +39,13 @@ def default_width(M: int) -> float:
     neighbouring bins, which the non-negative weights cannot take back next to an empty bin (a
     V-groove's one-bin mirror peaks: 12 % rel. L1 at alpha_y = tan(pi / 16 M), 0.8 % at this width).
     """
+    M = check_int("M", M, 1, 1 << 16)
     return float(max(np.tan(np.pi / M / 256.0), 3e-6))
 
+
+#: largest table the lobes are built for (phi_i bins) and largest atom array (S x M x M floats: 512 MiB)
+MAX_BINS = 4096
+MAX_ATOMS = 1 << 26
 
 #: bins on each side of a table lobe's own bin that get its spill (GGX tails); beyond, the spill of a
 #: default-width lobe is < 3e-6 of its weight (measured at M = 256) and is dropped
@@ -54,14 +60,17 @@ def bin_atoms(phi_o, M: int, alpha_y=None, alpha_x: float = 1e-4, band=BAND) -> 
     Only the bins |m - b| <= ``band`` are evaluated (``cycles_ggx.cone_collapse_binned_jittered_windows``;
     ``band=None``: all M, the full-range function).
     """
-    if not (isinstance(M, (int, np.integer)) and M >= 4):
-        raise ValueError(f"M must be an integer >= 4; got {M!r}")
-    phi_o = np.atleast_1d(np.asarray(phi_o, float))
-    if phi_o.ndim != 1 or not np.all(np.isfinite(phi_o)) or np.any(np.abs(phi_o) >= 0.5 * np.pi):
+    M = check_int("M (phi_i bins)", M, 4, MAX_BINS)
+    phi_o = np.atleast_1d(finite("phi_o", phi_o))
+    if phi_o.ndim != 1 or np.any(np.abs(phi_o) >= 0.5 * np.pi):
         raise ValueError("phi_o must be a 1D array of angles in (-pi/2, pi/2) radians")
+    if phi_o.size * M * M > MAX_ATOMS:
+        raise ValueError(f"phi_o: {phi_o.size} view angles x {M}^2 bins need {phi_o.size * M * M * 8 / 2**30:.1f} GiB "
+                         f"of atoms; at most {MAX_ATOMS // (M * M)} view angles at M = {M}")
     if band is not None and not (isinstance(band, (int, np.integer)) and band >= 1):
         raise ValueError(f"band must be None or an integer >= 1; got {band!r}")
-    ay = default_width(M) if alpha_y is None else float(alpha_y)
+    ay = default_width(M) if alpha_y is None else check_range("alpha_y", alpha_y, 1e-9, 1.0)
+    alpha_x = check_range("alpha_x", alpha_x, 0.0, 1.0)
     e = phi_bin_edges(M)
     tilt = 0.5 * (phi_bin_centres(M)[None, :] + phi_o[:, None])                       # [S, M]
     if band is None or 2 * band + 1 >= M:
@@ -97,11 +106,13 @@ def fit_bins(rows, phi_o, alpha_y=None, alpha_x: float = 1e-4, sweeps: int = 30,
     channel is scaled to the table's albedo sum_i C_i rho_i (the lobes' total reflectance).
     Returns (w, error [S] rel. L1 of the model, worst channel, atoms [S, M, M]).
     """
-    rows = np.asarray(rows, float)
+    rows = finite("rows", rows)
+    if rows.ndim not in (2, 3) or rows.shape[1] < 4 or 0 in rows.shape:
+        raise ValueError(f"rows must be [S, M] or [S, M, C] table rows with M >= 4 phi_i bins; got shape {rows.shape}")
     scalar = rows.ndim == 2
     r3 = rows[..., None] if scalar else rows
     S, M, C = r3.shape
-    if not np.all(np.isfinite(r3)) or np.any(r3 < 0):
+    if np.any(r3 < 0):
         raise ValueError("rows must be finite and >= 0")
     if not (isinstance(sweeps, (int, np.integer)) and 0 <= sweeps <= 1000):
         raise ValueError(f"sweeps must be an integer in [0, 1000]; got {sweeps!r}")
@@ -129,11 +140,20 @@ def fit_bins(rows, phi_o, alpha_y=None, alpha_x: float = 1e-4, sweeps: int = 30,
 
 
 def proposal(w_m, w_0=None):
-    """The shader's bin-picking distribution: CDF [S, M+1] of p_b = w^m_b (+ mean_c w^0_b) and P [S]."""
-    p = np.asarray(w_m, float)
+    """The shader's bin-picking distribution: CDF [S, M+1] of p_b = w^m_b (+ mean_c w^0_b) and P [S].
+
+    ``w_m`` [S, M] and ``w_0`` [S, M, C] are closure weights: finite and >= 0 (else ValueError)."""
+    p = finite("w_m", w_m)
+    if p.ndim != 2 or p.shape[1] < 1 or np.any(p < 0):
+        raise ValueError(f"w_m must be [S, M] closure weights >= 0; got shape {p.shape}")
     if w_0 is not None:
-        p = p + np.asarray(w_0, float).mean(-1)
+        w0 = finite("w_0", w_0)
+        if w0.shape[:2] != p.shape or w0.ndim != 3 or np.any(w0 < 0):
+            raise ValueError(f"w_0 must be [S, M, C] closure weights >= 0 with [S, M] = {p.shape}; got shape {w0.shape}")
+        p = p + w0.mean(-1)
     cum = np.concatenate([np.zeros((p.shape[0], 1)), np.cumsum(p, 1)], 1)
+    if not np.all(np.isfinite(cum[:, -1])):
+        raise ValueError("w_m: closure weights so large that their sum overflows (expected reflectances, ~<= 1e3)")
     total = cum[:, -1]
     cdf = cum / np.where(total > 0, total, 1.0)[:, None]
     # from the last non-empty bin on the CDF is exactly 1, so no h < 1 can land in a trailing empty bin

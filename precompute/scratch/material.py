@@ -120,13 +120,15 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
         raise ValueError(f"lobes must be an integer in [1, 16], got {lobes!r}")
     if mode not in MODES:
         raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if isinstance(resolution, bool) or resolution not in (64, 128, 256, 512):
+        raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
+    resolution = int(resolution)
     if mode == "reference" and resolution > REFERENCE_MAX_M:
         raise ValueError(f"resolution must be <= {REFERENCE_MAX_M} in reference mode "
                          f"(the exact table is compiled into the shader); got {resolution}")
-    if resolution not in (64, 128, 256, 512):
-        raise ValueError(f"resolution must be one of 64, 128, 256, 512; got {resolution!r}")
-    if slices not in (16, 32, 64, 128) or slices > resolution:
+    if isinstance(slices, bool) or slices not in (16, 32, 64, 128) or slices > resolution:
         raise ValueError(f"slices must be one of 16, 32, 64, 128 and <= resolution; got {slices!r}")
+    slices = int(slices)
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     if backend == "svm" and mode != "lobes":

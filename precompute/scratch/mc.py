@@ -42,48 +42,86 @@ def _intersect(px, ph, dx, dh, ax, ah, ex, eh):
 
 
 def trace_mc(verts: np.ndarray, resolution: int, rays_per_slice: int, seed: int = 0, fresnel=None,
-             cos_scales=(), *, max_bounces: int = 64):
+             cos_scales=(), *, max_bounces: int = 64, chunk_rays: int = 1 << 18):
     """Monte Carlo tables ``(rho_m, rho_f, lost)`` on the ``[phi_o_bin, phi_i_bin]`` grid.
 
     ``rho_f``: shape ``(S, M, M, C)`` for the Fresnel slices ``cos_scales`` (None without Fresnel);
-    ``lost``: per phi_i bin, the flux still inside after ``max_bounces``.
+    ``lost``: per phi_i bin, the flux still inside after ``max_bounces``.  Rays are traced in batches of
+    ``chunk_rays`` (bounded memory); each phi_i bin draws from its own two streams seeded by
+    ``(seed, bin)``, so the result does not depend on the batching.
     """
     verts = np.asarray(verts, np.float64)
     M, N = int(resolution), int(rays_per_slice)
-    rng = np.random.default_rng(seed)
-    # two periods of segments, for rays travelling towards +x (mirror x for the others)
+    geo = _mc_geometry(verts)
+    edges = -0.5 * np.pi + np.arange(M + 1) * np.pi / M
+    C_o = np.diff(np.sin(edges))
+    cos_scales = np.asarray(cos_scales, np.float64)
+    S = cos_scales.size
+    C = fresnel.channels if (fresnel is not None and S) else 0
+    acc = np.zeros(M * M)
+    accf = np.zeros((S, C, M * M)) if C else None
+    lost = np.zeros(M)
+    streams = {}
+    step = max(1, int(chunk_rays))
+    # batches of (bin, first ray, count): whole bins while they fit, else parts of one bin
+    batches, cur, n_cur = [], [], 0
+    for b in range(M):  # a loop over phi_i bins to plan the batches (cheap)
+        for r0 in range(0, N, step):
+            cnt = min(step, N - r0)
+            if n_cur + cnt > step and cur:
+                batches.append(cur)
+                cur, n_cur = [], 0
+            cur.append((b, cnt))
+            n_cur += cnt
+    if cur:
+        batches.append(cur)
+    for batch in batches:  # a loop over ray batches
+        ibin = np.concatenate([np.full(cnt, b) for b, cnt in batch])
+        u = np.concatenate([_stream(streams, seed, b, 0).random(cnt) for b, cnt in batch])
+        px = np.concatenate([_stream(streams, seed, b, 1).random(cnt) for b, cnt in batch]) - 0.5
+        _trace_batch(geo, ibin, u, px, edges, M, fresnel, cos_scales, C, max_bounces, acc, accf, lost)
+    norm = N * C_o[:, None]
+    rho_m = acc.reshape(M, M) / norm
+    rho_f = None
+    if C:
+        rho_f = np.moveaxis(accf.reshape(S, C, M, M), 1, -1) / norm[None, :, :, None]
+    return rho_m, rho_f, lost / N
+
+
+def _stream(streams: dict, seed: int, b: int, which: int):
+    key = (b, which)
+    if key not in streams:
+        streams.clear() if len(streams) > 64 else None
+        streams[key] = np.random.default_rng([int(seed), int(b), which])
+    return streams[key]
+
+
+def _mc_geometry(verts):
+    """Two periods of segments for rays travelling towards +x, and the mirrored profile for the others."""
     ax = np.concatenate([verts[:-1, 0], verts[:-1, 0] + 1.0])
     ah = np.concatenate([verts[:-1, 1], verts[:-1, 1]])
     ex = np.tile(np.diff(verts[:, 0]), 2)
     eh = np.tile(np.diff(verts[:, 1]), 2)
     ln = np.hypot(ex, eh)
-    nx, nh = -eh / ln, ex / ln
     mir = np.stack([-verts[::-1, 0], verts[::-1, 1]], 1)  # mirrored profile, same x range
     bx = np.concatenate([mir[:-1, 0], mir[:-1, 0] + 1.0])
     bh = np.concatenate([mir[:-1, 1], mir[:-1, 1]])
     fx = np.tile(np.diff(mir[:, 0]), 2)
     fh = np.tile(np.diff(mir[:, 1]), 2)
     fl = np.hypot(fx, fh)
-    mx, mh = -fh / fl, fx / fl
+    return dict(right=(ax, ah, ex, eh), left=(bx, bh, fx, fh), n=(-eh / ln, ex / ln), m=(-fh / fl, fx / fl))
 
-    edges = -0.5 * np.pi + np.arange(M + 1) * np.pi / M
-    C_o = np.diff(np.sin(edges))
-    cos_scales = np.asarray(cos_scales, np.float64)
+
+def _trace_batch(geo, ibin, u, px, edges, M, fresnel, cos_scales, C, max_bounces, acc, accf, lost):
+    """Trace one batch of rays (bins ``ibin``, uniforms ``u`` for phi_i, positions ``px``); accumulate in place."""
+    nx, nh = geo["n"]
+    mx, mh = geo["m"]
     S = cos_scales.size
-    C = fresnel.channels if (fresnel is not None and S) else 0
-
-    ibin = np.repeat(np.arange(M), N)
-    u = rng.random(ibin.size)
     sin_phi = np.sin(edges[ibin]) + u * (np.sin(edges[ibin + 1]) - np.sin(edges[ibin]))
     phi = np.arcsin(np.clip(sin_phi, -1.0, 1.0))
-    px = rng.random(ibin.size) - 0.5
     ph = np.zeros(ibin.size)
     dx, dh = -np.sin(phi), -np.cos(phi)
     wf = np.ones((ibin.size, S, C)) if C else None
-
-    acc = np.zeros(M * M)
-    accf = np.zeros((S, C, M * M)) if C else None
-    lost = np.zeros(M)
     alive = np.arange(ibin.size)
     for _ in range(max_bounces + 1):
         if not alive.size:
@@ -96,9 +134,9 @@ def trace_mc(verts: np.ndarray, resolution: int, rays_per_slice: int, seed: int 
         vxm = np.abs(vx)
         t = np.full(alive.size, np.inf)
         j = np.full(alive.size, -1, np.intp)
-        for sel, (sx, sh, sex, seh) in ((right, (ax, ah, ex, eh)), (~right, (bx, bh, fx, fh))):
+        for sel, segs in ((right, geo["right"]), (~right, geo["left"])):
             if sel.any():
-                t[sel], j[sel] = _intersect(xm[sel], h[sel], vxm[sel], vh[sel], sx, sh, sex, seh)
+                t[sel], j[sel] = _intersect(xm[sel], h[sel], vxm[sel], vh[sel], *segs)
         hit = np.isfinite(t)
         # leaving rays
         esc = ~hit
@@ -130,9 +168,3 @@ def trace_mc(verts: np.ndarray, resolution: int, rays_per_slice: int, seed: int 
         alive = a
     if alive.size:
         lost += np.bincount(ibin[alive], minlength=M)
-    norm = N * C_o[:, None]
-    rho_m = acc.reshape(M, M) / norm
-    rho_f = None
-    if C:
-        rho_f = np.moveaxis(accf.reshape(S, C, M, M), 1, -1) / norm[None, :, :, None]
-    return rho_m, rho_f, lost / N

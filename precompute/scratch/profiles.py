@@ -33,9 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Profile", "quartic", "v_groove", "circular", "flat", "tabulated", "from_file"]
+__all__ = ["Profile", "quartic", "v_groove", "circular", "flat", "tabulated", "from_file", "simplify", "MAX_POINTS"]
 
 _DENSE = 4096  # dense samples per half profile when placing analytic vertices
+_MIN_SPACING = 1e-9  # smallest x step of a tabulated profile, relative to its width
+#: most points of a tabulated profile (a profilometer trace of a scratch has thousands; the simulation
+#: simplifies it, see ``simplify``)
+MAX_POINTS = 1 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,18 +164,26 @@ def v_groove(half_angle_deg: float = 45.0) -> Profile:
     return Profile(x, h, "v_groove", {"half_angle_deg": a}, True)
 
 
-def circular(depth: float = 0.5, *, segments: int = 256) -> Profile:
-    """Circular-arc ("round"/"U") groove through the rims with sagitta ``depth`` in (0, 0.5].
+#: shallowest circular groove: below 1e-6 of its width an arc is flat to double precision in every
+#: quantity the simulation uses (its radius exceeds 1e5 widths)
+CIRCULAR_MIN_DEPTH = 1e-6
 
-    ``depth = 0.5`` is a semicircle.  Vertices are uniform in angle along the arc.
+
+def circular(depth: float = 0.5, *, segments: int = 256) -> Profile:
+    """Circular-arc ("round"/"U") groove through the rims with sagitta ``depth`` in [1e-6, 0.5].
+
+    ``depth = 0.5`` is a semicircle.  Vertices are placed like the other families (turning angle +
+    arc length).  With the half-angle ``psi_max = 2 atan(2 depth)`` of the arc and radius
+    ``r = (1/4 + depth^2) / (2 depth)``, a point at angle psi is ``x = r sin(psi)``,
+    ``h = 2 r sin^2(psi / 2) - depth`` (the sagitta form, without the cancellation of ``r cos(psi) - (r - d)``).
     """
-    d = _check_range(depth, "depth", 0.0, 0.5, low_open=True)
+    d = _check_range(depth, "depth", CIRCULAR_MIN_DEPTH, 0.5)
     r = (0.25 + d * d) / (2.0 * d)
-    psi_max = np.arcsin(min(1.0, 0.5 / r))
+    psi_max = 2.0 * np.arctan(2.0 * d)
 
     def half(t):
         psi = psi_max * t
-        return r * np.sin(psi), -(r * np.cos(psi) - (r - d))
+        return r * np.sin(psi), 2.0 * r * np.sin(0.5 * psi) ** 2 - d
 
     return _analytic("circular", {"depth": d}, half, segments)
 
@@ -201,6 +213,8 @@ def tabulated(x, height, *, name: str = "tabulated") -> Profile:
         raise ValueError(f"x, height: lengths differ ({x.size} vs {h.size})")
     if x.size < 2:
         raise ValueError(f"x, height: need at least 2 points, got {x.size}")
+    if x.size > MAX_POINTS:
+        raise ValueError(f"x, height: at most {MAX_POINTS} points, got {x.size} (resample the trace)")
     for arr, nm in ((x, "x"), (h, "height")):
         bad = np.flatnonzero(~np.isfinite(arr))
         if bad.size:
@@ -213,6 +227,10 @@ def tabulated(x, height, *, name: str = "tabulated") -> Profile:
     if bad.size:
         raise ValueError(f"x: must be strictly increasing (non-monotonic at index {bad[0] + 1}: "
                          f"{x[bad[0]]!r} -> {x[bad[0] + 1]!r})")
+    gap = np.flatnonzero(d < _MIN_SPACING * width)
+    if gap.size:
+        raise ValueError(f"x: points {gap[0]} and {gap[0] + 1} are closer than {_MIN_SPACING:g} of the profile width "
+                         f"({x[gap[0]]!r} -> {x[gap[0] + 1]!r}); merge or drop such near-duplicate samples")
     xs = (x - x[0]) / width - 0.5
     xs[0], xs[-1] = -0.5, 0.5
     hs = (h - h.max()) / width
@@ -259,3 +277,72 @@ def from_file(path: str | os.PathLike, *, delimiter: str | None = None, name: st
         raise ValueError(f"{path}: no (x, height) rows found")
     a = np.array(rows)
     return tabulated(a[:, 0], a[:, 1], name=name or os.path.splitext(os.path.basename(path))[0])
+
+
+def simplify(profile: Profile, max_exit_error: float) -> Profile:
+    """The profile with runs of nearly collinear segments replaced by their chords (error-controlled).
+
+    A run of segments is replaced by the chord of its end points when every segment's direction is
+    within ``max_exit_error / 2`` (radians) of the chord's: a beam reflected once by any part of the
+    run then leaves within ``max_exit_error`` of where it left before (a mirror turns by twice the
+    normal's change), and every removed vertex lies within ``max_exit_error / 4`` of the run length
+    from the chord.  Douglas-Peucker splitting (at the vertex farthest from the chord) until every
+    run passes.  The end points, the highest point (the base height of §5.3) and, for a symmetric
+    profile, the centre are kept, and symmetric profiles are simplified on one half and mirrored, so
+    symmetry stays exact.  ``max_exit_error = 0`` returns the profile itself.
+
+    Use: measured traces sample smooth stretches far more finely than a table bin resolves
+    (``brdf.simulate`` simplifies to a fraction of its bin width ``pi / M``; ``bench/scratch_scale.py``
+    reports the table error it adds).  Noise at the sampling pitch is *kept*: each of its facets
+    scatters light elsewhere, so it changes the table (smooth such a trace first if it is
+    measurement noise).
+    """
+    if not isinstance(profile, Profile):
+        raise ValueError(f"profile: expected a precompute.profiles.Profile, got {type(profile).__name__}")
+    tol = _check_range(max_exit_error, "max_exit_error", 0.0, np.pi / 2)
+    if tol == 0.0 or profile.segments <= 2:
+        return profile
+    x, h = profile.x, profile.h
+    n = x.size
+    if profile.is_symmetric:
+        mid = n // 2  # x[mid] == 0 for odd n (exact symmetry); else the half ends at the middle segment
+        if n % 2:
+            keep = _simplify_run(x[:mid + 1], h[:mid + 1], 0.5 * tol, [int(np.argmax(h[:mid + 1]))])
+            left = np.flatnonzero(keep)
+            idx = np.concatenate([left, (n - 1 - left[::-1])[1:]])
+        else:
+            keep = _simplify_run(x[:mid], h[:mid], 0.5 * tol, [int(np.argmax(h[:mid]))])
+            left = np.flatnonzero(keep)
+            idx = np.concatenate([left, n - 1 - left[::-1]])
+    else:
+        idx = np.flatnonzero(_simplify_run(x, h, 0.5 * tol, [int(np.argmax(h))]))
+    if idx.size == n:
+        return profile
+    params = dict(profile.params, simplified_from=int(profile.segments), max_exit_error=float(tol))
+    return Profile(x[idx].copy(), h[idx].copy(), profile.name, params, profile.is_symmetric)
+
+
+def _simplify_run(x: np.ndarray, h: np.ndarray, max_turn: float, forced) -> np.ndarray:
+    """Douglas-Peucker with a direction criterion: keep-mask of vertices such that on every kept
+    chord each original segment's direction is within ``max_turn`` of the chord's.  ``forced``: indices kept."""
+    n = x.size
+    keep = np.zeros(n, bool)
+    keep[[0, n - 1]] = True
+    keep[list(forced)] = True
+    ang = np.arctan2(np.diff(h), np.diff(x))  # segment directions, in (-pi/2, pi/2) (x increasing)
+    cuts = np.flatnonzero(keep)
+    stack = list(zip(cuts[:-1], cuts[1:]))
+    while stack:  # a loop over kept chords (as many as output segments), each test vectorised
+        i, j = stack.pop()
+        if j - i < 2:
+            continue
+        dx, dh = x[j] - x[i], h[j] - h[i]
+        chord = np.arctan2(dh, dx)
+        if np.max(np.abs(ang[i:j] - chord)) <= max_turn:
+            continue
+        ln = np.hypot(dx, dh)
+        dist = np.abs((x[i + 1:j] - x[i]) * dh - (h[i + 1:j] - h[i]) * dx) / ln
+        k = i + 1 + int(np.argmax(dist))
+        keep[k] = True
+        stack += [(i, k), (k, j)]
+    return keep

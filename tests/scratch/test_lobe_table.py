@@ -111,7 +111,7 @@ def test_lossy_tables_and_cache(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("call, needle", [
-    (lambda: lt.bin_atoms([0.1], 3), "M must be an integer >= 4"),
+    (lambda: lt.bin_atoms([0.1], 3), r"M \(phi_i bins\) must be an integer in \[4, 4096\]"),
     (lambda: lt.bin_atoms([2.0], 16), "phi_o must be"),
     (lambda: lt.fit_bins(-np.ones((2, 8)), np.zeros(2)), "rows must be finite and >= 0"),
     (lambda: lt.fit_bins(np.ones((2, 8)), np.zeros(2), sweeps=-1), "sweeps"),

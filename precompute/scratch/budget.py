@@ -1,0 +1,85 @@
+"""Memory and time budget of the scratch BRDF simulation (Raymond et al. 2016, §4.1; issue #14).
+
+The exact tracer (``beam``) turns every traced incident direction into a few exit *records* per lit
+profile segment (1.5-2.1 per segment measured on quartics and noisy traces), and the integration
+(``brdf._integrate``) works record by record.  Both stream: the phi_i range is cut into parts whose
+records fit ``part_budget`` bytes, each part's visibility step runs in beam batches, and each part
+accumulates only its own phi_i columns.  What remains is the output: the ``[components, classes, M, M]``
+float64 accumulator and the float32 tables.  So the peak is
+
+    out_bytes + workers * part_bytes   (<= MEMORY_BUDGET, plus ~0.1-0.2 GiB of Python and numpy)
+
+and the time is ``records * SECONDS_PER_RECORD / speed-up``.  ``brdf.estimate_cost`` fills these in for
+a concrete input (with the records per direction measured on a few probe directions) and ``simulate``
+refuses, before any work, an input whose estimate exceeds the bound (``ValueError`` with the estimate
+and the range of the parameter to change).
+
+Units: bytes, seconds (of the reference 2-core machine; other machines scale).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["MEMORY_BUDGET", "MAX_SECONDS", "Cost", "output_bytes", "part_budget", "BYTES_PER_RECORD",
+           "SECONDS_PER_RECORD", "BYTES_PER_RAY", "SECONDS_PER_RAY_SEGMENT"]
+
+#: bytes one simulation may allocate at its peak (with Python, numpy and scipy the process stays < 1 GiB)
+MEMORY_BUDGET = 768 * 2**20
+#: default limit of the estimated run time of one simulation (``simulate(..., max_seconds=...)``)
+MAX_SECONDS = 600.0
+#: working bytes per exit record while a part is traced and integrated (tracemalloc peaks measured at
+#: 1.1-1.8 kB per record, more with many Fresnel components; margin included) plus 8 bytes per component
+BYTES_PER_RECORD = 2600
+BYTES_PER_RECORD_COMPONENT = 64
+#: CPU seconds per exit record, trace + integration, one thread (measured 2.2-3.2 us/record wall with two
+#: threads on the reference machine; ``bench/scratch_scale.py``)
+SECONDS_PER_RECORD = 4.5e-6
+#: two threads on separate parts gain ~1.6x (the tracer is memory-bound)
+THREAD_SPEEDUP = {1: 1.0, 2: 1.6}
+#: Monte Carlo: bytes per ray in flight and CPU seconds per ray-segment intersection test
+BYTES_PER_RAY = 160
+SECONDS_PER_RAY_SEGMENT = 6e-9
+
+
+@dataclass(frozen=True)
+class Cost:
+    """Estimated cost of one simulation: ``seconds`` (wall, reference machine), ``peak_bytes`` (this call's
+    allocations), the traced ``segments``, ``nodes`` (incident directions), ``records`` (exit beams),
+    ``out_bytes`` (accumulator + tables) and ``part_nodes`` (directions per streamed part)."""
+
+    seconds: float
+    peak_bytes: int
+    segments: int
+    nodes: int
+    records: int
+    out_bytes: int
+    part_nodes: int
+
+    def describe(self) -> str:
+        return (f"~{_fmt_seconds(self.seconds)} and ~{self.peak_bytes / 2**20:.0f} MiB "
+                f"({self.segments} segments, {self.nodes} traced directions, ~{self.records / 1e6:.2g} M exit beams)")
+
+
+def _fmt_seconds(s: float) -> str:
+    if s < 120:
+        return f"{s:.3g} s"
+    if s < 7200:
+        return f"{s / 60:.3g} min"
+    return f"{s / 3600:.3g} h"
+
+
+def output_bytes(M: int, components: int, classes: int, channels: int, split: bool) -> int:
+    """The float64 accumulator ``[components, classes, M, M]`` plus the float32 tables (rho0, rho_m,
+    gamma per channel, the bounce split) and row-chunked temporaries of the assembly."""
+    acc = 8 * components * classes * M * M
+    tables = 4 * M * M * (3 * channels + (3 if split else 0))
+    return int(acc + tables + 8 * M * M)
+
+
+def part_budget(out: int, workers: int) -> int:
+    """Bytes each of ``workers`` parts in flight may use once the output is allocated."""
+    return int(max(0, MEMORY_BUDGET - out) // max(1, workers))
+
+
+def record_bytes(components: int) -> int:
+    return BYTES_PER_RECORD + BYTES_PER_RECORD_COMPONENT * components
