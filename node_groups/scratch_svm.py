@@ -28,6 +28,28 @@ import numpy as np
 from ..precompute.cycles.glossy import glossy_node_params
 
 _PI = math.pi
+#: custom property marking the table lobe's Glossy node
+TABLE_GLOSSY = "scratch_table_glossy"
+#: custom property "<twin>/<kind>/<k>" on the Math node holding layer k's rotation / offset constant (input 1)
+LAYER_CONST = "scratch_layer_const"
+
+
+def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
+    """Write new layer rotations Θ_k and offsets ξ_k (eq. 7) into the Math nodes ``build`` tagged for ``twin``
+    (same layer count); returns how many constants were written."""
+    values = {}
+    for k in range(len(theta_k)):
+        c, s_ = math.cos(theta_k[k]), math.sin(theta_k[k])
+        values.update({f"{twin}/c/{k}": c, f"{twin}/s/{k}": s_, f"{twin}/ms/{k}": -s_,
+                       f"{twin}/xi0/{k}": float(xi_k[k][0]), f"{twin}/xi1/{k}": float(xi_k[k][1]),
+                       f"{twin}/theta/{k}": float(theta_k[k])})
+    n = 0
+    for node in tree.nodes:
+        tag = node.get(LAYER_CONST)
+        if tag is not None and tag in values:
+            node.inputs[1].default_value = values[tag]
+            n += 1
+    return n
 
 
 class _G:
@@ -105,9 +127,18 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
-          name: str = "scratch") -> bpy.types.NodeSocket:
-    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4)."""
+          name: str = "scratch", controls: dict | None = None, twin: str = "svm") -> bpy.types.NodeSocket:
+    """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4).
+
+    ``controls``: optional output sockets {"length", "width", "density", "tint"} that replace the
+    compiled-in constants ``layers.length`` (l), ``layers.width`` (w), ``layers.density`` (d, eq. 7) and
+    ``tint`` (the live-editable, animatable values of ``scratch_addon.live``).  Unlinked, Cycles folds
+    them back into constants (measured: bench/live_update.py --cost)."""
     g = _G(tree)
+    controls = controls or {}
+    length = controls.get("length", None)
+    width = controls.get("width", None)
+    tint = controls.get("tint", tint)
     geo = g.node("ShaderNodeNewGeometry")
     tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
     uvn = g.node("ShaderNodeUVMap")
@@ -137,17 +168,25 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         uv = uvn.outputs["UV"]
         uvs = g.separate(uv)
         alphas, acc, accs = [], None, []
+        inv_l = 1.0 / layers.length if length is None else g.math("DIVIDE", 1.0, length)
+        inv_w = 1.0 / layers.width if width is None else g.math("DIVIDE", 1.0, width)
+        dens = controls.get("density", None)
+        threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
+        def tagged(kind, k, socket):   # a per-layer constant (input 1 of the node): set_layer_constants
+            socket.node[LAYER_CONST] = f"{twin}/{kind}/{k}"
+            return socket
+
         for k in range(layers.n_layers):
             c, s_ = math.cos(theta_k[k]), math.sin(theta_k[k])
-            yx = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], c), g.math("MULTIPLY", uvs[1], s_)),
-                                        1.0 / layers.length), float(xi_k[k][0]))
-            yy = g.math("ADD", g.math("MULTIPLY", g.math("ADD", g.math("MULTIPLY", uvs[0], -s_), g.math("MULTIPLY", uvs[1], c)),
-                                        1.0 / layers.width), float(xi_k[k][1]))
+            ru = g.math("ADD", tagged("c", k, g.math("MULTIPLY", uvs[0], c)), tagged("s", k, g.math("MULTIPLY", uvs[1], s_)))
+            rv = g.math("ADD", tagged("ms", k, g.math("MULTIPLY", uvs[0], -s_)), tagged("c", k, g.math("MULTIPLY", uvs[1], c)))
+            yx = tagged("xi0", k, g.math("ADD", g.math("MULTIPLY", ru, inv_l), float(xi_k[k][0])))
+            yy = tagged("xi1", k, g.math("ADD", g.math("MULTIPLY", rv, inv_w), float(xi_k[k][1])))
             vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
             vor.inputs["Scale"].default_value = 1.0
             vor.inputs["Randomness"].default_value = 1.0
             g._set(vor.inputs["Vector"], g.combine(yx, yy))
-            a = g.math("LESS_THAN", vor.outputs["Distance"], float(layers.density) + 1e-7)  # [F1]_d, eq. 7
+            a = g.math("LESS_THAN", vor.outputs["Distance"], threshold)  # [F1]_d, eq. 7
             alphas.append(a)
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
@@ -158,7 +197,7 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
             below = g.math("LESS_THAN", target, acc_k)
             sel = below if prev is None else g.math("SUBTRACT", below, prev)
             prev = below
-            term = g.math("MULTIPLY", sel, float(theta_k[k]))
+            term = tagged("theta", k, g.math("MULTIPLY", sel, float(theta_k[k])))
             theta_sel = term if theta_sel is None else g.math("ADD", theta_sel, term)
     # scratch frame of the picked layer
     u = g.vmath("ADD", g.vmath("SCALE", t, scale=g.math("COSINE", theta_sel)), g.vmath("SCALE", b, scale=g.math("SINE", theta_sel)))
@@ -187,6 +226,15 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
     return mixs.outputs[0]
+
+
+def _tinted(g, colour, tint):
+    """``colour`` times the scratch tint (a constant RGB, skipped when white, or a Color socket)."""
+    if isinstance(tint, bpy.types.NodeSocket):
+        return g.vmath("MULTIPLY", colour, tint)
+    if tuple(tint)[:3] != (1.0, 1.0, 1.0):
+        return g.vmath("MULTIPLY", colour, tuple(float(c) for c in tuple(tint)[:3]))
+    return colour
 
 
 def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
@@ -218,8 +266,7 @@ def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
                 r = g.math("POWER", x, gamma)
                 f = r if use_r_m else g.math("SUBTRACT", 1.0, r)
                 colour = g.vmath("SCALE", colour, scale=f)
-            if tuple(tint) != (1.0, 1.0, 1.0):
-                colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+            colour = _tinted(g, colour, tint)
             glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
             g._set(glossy.inputs["Color"], colour)
             g._set(glossy.inputs["Roughness"], rough)
@@ -310,12 +357,12 @@ def _table_lobe(g, lobe_data, name, row, s, S, x, N, u, v, h, tint):
         w0s = g.separate(w0)
         p = g.math("ADD", wm, g.math("MULTIPLY", g.math("ADD", g.math("ADD", w0s[0], w0s[1]), w0s[2]), 1.0 / 3.0))
         colour = g.vmath("SCALE", W, scale=g.math("DIVIDE", P, g.math("MAXIMUM", p, 1e-30)))
-    if tuple(tint) != (1.0, 1.0, 1.0):
-        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+    colour = _tinted(g, colour, tint)
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
     ax = float(lobe_data["alpha_x"])
     ay = max(float(lobe_data["alpha_y"]), ax)
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+    glossy[TABLE_GLOSSY] = True   # its roughness follows the table (scratch_addon.scratch_material.apply_tables)
     g._set(glossy.inputs["Color"], colour)
     rough, aniso = glossy_node_params(ax, min(ay, 1.0))
     g._set(glossy.inputs["Roughness"], rough)
