@@ -238,3 +238,27 @@ def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, mat):
     assert _layer_constants(mat) == _layer_constants(fresh) != consts
     want = _snapshot(fresh)
     assert (after["text"], after["C"], after["B"]) == (want["text"], want["C"], want["B"])
+
+
+def test_iridescent_layer_drag_compiles_once_with_the_last_value(addon, scene, monkeypatch):
+    """Every iridescent-layer setting is compiled in (σ sizes the reach grid): a drag rebuilds once (UI)."""
+    import bpy
+
+    live, irid = addon.live, addon.iridescence_material
+    m = bpy.data.materials.new("irid")
+    node = m.node_tree.nodes.new("ShaderNodeScript")
+    node.name = irid.NODE_NAME                      # stands for an inserted layer: insert_layer is counted
+    calls = []
+    monkeypatch.setattr(irid, "insert_layer", lambda mat, scratches, **kw: calls.append(kw))
+    monkeypatch.setattr(live, "_background", lambda: False)
+    monkeypatch.setattr(live.bpy.app.timers, "register", lambda *a, **k: None)
+    monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
+    for sigma in (20.0, 30.0, 40.0, 55.0):
+        m.scratch_iridescence.sigma_um = sigma
+    m.scratch_iridescence.samples = 3
+    assert calls == [] and live.pending()
+    live.flush()
+    assert len(calls) == 1 and calls[0]["sigma_um"] == pytest.approx(55.0) and calls[0]["samples"] == 3
+    monkeypatch.setattr(live, "_background", lambda: True)     # headless: at once
+    m.scratch_iridescence.sigma_um = 70.0
+    assert len(calls) == 2 and calls[1]["sigma_um"] == pytest.approx(70.0)
