@@ -119,36 +119,40 @@ def timing(repeats: int) -> list:
     return rows
 
 
-def _plane_scene(render, make_material, osl: bool, spp: int, res):
-    scene = render.reset_scene()
-    material = make_material()
-    render.uniform_world(scene, strength=1.0)
-    render.add_plane(scene, size=2.0, material=material)
-    render.add_light(scene, "AREA", location=(1.0, -1.0, 3.0), energy=150.0, size=0.25)
-    render.add_camera(scene, location=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), ortho_scale=1.6)
-    render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=osl)
-    scene.cycles.use_adaptive_sampling = False
-    return scene
-
-
 def cost(repeats: int, spp: int, res) -> list:
+    """Per-sample render cost, sockets (A) vs constants (B): both materials in one scene, the plane's material
+    swapped between renders, order ABBA..., per sample = (t(spp) - t(spp / 4)) / (3 spp / 4): sync excluded."""
     api, live, render, scratch_material = _setup()
     tmp = tempfile.mkdtemp(prefix="bench_live_")
     rows = []
     for osl in (False, True):
-        times = {True: [], False: []}
-        for _ in range(repeats):
-            for controls in (True, False):   # A/B interleaved, each in a fresh scene
-                scratch_material.LIVE_CONTROLS = controls
-                scene = _plane_scene(render, lambda: api.make_scratched_material("demo", resolution=128), osl, spp,
-                                     res)
-                render.render_to_file(scene, os.path.join(tmp, "warm.png"))   # shader compile / kernel load
-                scene.cycles.samples = spp // 4
-                t_low = render.render_to_file(scene, os.path.join(tmp, "t.png"))
-                scene.cycles.samples = spp
-                t_high = render.render_to_file(scene, os.path.join(tmp, "t.png"))
-                times[controls].append((t_high - t_low) / (spp - spp // 4))   # per sample: sync excluded
+        scene = render.reset_scene()
         scratch_material.LIVE_CONTROLS = True
+        mats = {True: api.make_scratched_material("demo", resolution=128, name="sockets")}
+        scratch_material.LIVE_CONTROLS = False
+        mats[False] = api.make_scratched_material("demo", resolution=128, name="constants")
+        scratch_material.LIVE_CONTROLS = True
+        render.uniform_world(scene, strength=1.0)
+        plane = render.add_plane(scene, size=2.0, material=mats[True])
+        render.add_light(scene, "AREA", location=(1.0, -1.0, 3.0), energy=150.0, size=0.25)
+        render.add_camera(scene, location=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), ortho_scale=1.6)
+        render.configure_cycles(scene, samples=spp, res=res, seed=0, osl=osl)
+        scene.cycles.use_adaptive_sampling = False
+
+        def per_sample(controls):
+            plane.data.materials[0] = mats[controls]
+            scene.cycles.samples = 4
+            render.render_to_file(scene, os.path.join(tmp, "warm.png"))   # shader compile / kernel load
+            scene.cycles.samples = spp // 4
+            t_low = render.render_to_file(scene, os.path.join(tmp, "t.png"))
+            scene.cycles.samples = spp
+            t_high = render.render_to_file(scene, os.path.join(tmp, "t.png"))
+            return (t_high - t_low) / (spp - spp // 4)
+
+        times = {True: [], False: []}
+        for i in range(repeats):
+            for controls in ((True, False) if i % 2 == 0 else (False, True)):
+                times[controls].append(per_sample(controls))
         a, b = statistics.median(times[True]), statistics.median(times[False])
         rows.append(("OSL" if osl else "SVM", a, b, a / b, repeats))
     return rows
@@ -169,7 +173,7 @@ def main(argv: list[str]) -> int:
         report("live_update_cost", ["path", "sockets s/spp", "constants s/spp", "ratio", "runs"], rows,
                f"Per-sample cost (t({a.spp} spp) - t({a.spp // 4} spp)) / {a.spp - a.spp // 4}, whole frame "
                f"{a.res[0]}x{a.res[1]}, adaptive off, UV plane filling an ortho camera, "
-               f"'demo' preset at resolution 128; A/B interleaved, medians; load average {load[0]:.1f} on "
+               f"'demo' preset at resolution 128, both materials in one scene, order ABBA, medians; load average {load[0]:.1f} on "
                f"{os.cpu_count()} cores.")
         return 0
     rows = timing(a.repeats)

@@ -21,8 +21,11 @@ GIL: the UI stays responsive during a cache miss) and applied on the main thread
 Undo/redo: Blender's memfile undo restores the settings and the node tree (tables are packed images,
 the shader a Text datablock) together; an ``undo_post`` / ``redo_post`` handler re-syncs any material
 whose stored table key disagrees with its settings (an undo step taken while an update was pending).
-Animation: keyframed or driven socket-valued settings are copied into their sockets on every frame
-change (``frame_change_post``), so a keyframed density renders differently on two frames.
+Animation: keyframed socket-valued settings are evaluated into their sockets before every frame
+(``frame_change_pre``: an animation render syncs the new frame right after) and keyframed or driven ones
+again after it (``frame_change_post``), so a keyframed density renders differently on two frames.  A .blend
+rendered on a machine *without* the add-on keeps the sockets' saved values: keyframe the "Scratch
+Controls" node's sockets themselves for a farm (they animate everywhere).
 """
 from __future__ import annotations
 
@@ -120,7 +123,7 @@ def _node_for(material, sock):
                       "diffuse": scratch_controls.DIFFUSE_NODE_NAME}[sock.node])
 
 
-def write_socket(material, prop: str) -> bool:
+def write_socket(material, prop: str, value=None) -> bool:
     """Write setting ``prop`` of ``material.scratch`` into its socket(s) (``scratch_controls.SOCKETS``) and the
     OSL script's input of the same name; False if the material has no such socket (then it needs a rebuild)."""
     settings = material.scratch
@@ -133,7 +136,7 @@ def write_socket(material, prop: str) -> bool:
     target = next((node.inputs[n] for n in sock.inputs if n in node.inputs), None)
     if target is None:
         return False
-    value = getattr(settings, prop)
+    value = getattr(settings, prop) if value is None else value
     value = value if isinstance(value, (int, float)) else tuple(value)
     scratch_controls.set_value(target, value)
     if sock.osl:
@@ -398,6 +401,34 @@ def _animated(material) -> set:
 
 
 @bpy.app.handlers.persistent
+def _on_frame_pre(scene, depsgraph=None):
+    """Before the frame is evaluated (an animation render syncs right after): keyframed socket settings
+    evaluated from their F-curves at the new frame."""
+    frame = scene.frame_current + getattr(scene, "frame_subframe", 0.0)
+    for mat in bpy.data.materials:
+        ad = mat.animation_data
+        if ad is None or ad.action is None or not is_live(mat):
+            continue
+        curves = {}
+        for fc in _layered_fcurves(ad.action):
+            prop = fc.data_path[len("scratch."):] if fc.data_path.startswith("scratch.") else None
+            if prop in SOCKET_PROPS and not fc.mute:
+                curves.setdefault(prop, []).append(fc)
+        for prop, fcs in curves.items():
+            try:
+                value = getattr(mat.scratch, prop)
+                if isinstance(value, (int, float)):
+                    value = fcs[0].evaluate(frame)
+                else:
+                    value = list(value)
+                    for fc in fcs:
+                        value[fc.array_index] = fc.evaluate(frame)
+                write_socket(mat, prop, value)
+            except Exception:  # noqa: BLE001 - never break playback or a render
+                traceback.print_exc()
+
+
+@bpy.app.handlers.persistent
 def _on_frame(scene, depsgraph=None):
     """Animated / driven socket settings follow the frame (the panel values are not sockets themselves)."""
     for mat in bpy.data.materials:
@@ -435,7 +466,7 @@ def _on_load(*_args):
     _job = None
 
 
-_HANDLERS = (("frame_change_post", _on_frame), ("undo_post", _on_undo), ("redo_post", _on_undo),
+_HANDLERS = (("frame_change_pre", _on_frame_pre), ("frame_change_post", _on_frame), ("undo_post", _on_undo), ("redo_post", _on_undo),
              ("load_pre", _on_load))
 
 

@@ -262,3 +262,26 @@ def test_iridescent_layer_drag_compiles_once_with_the_last_value(addon, scene, m
     monkeypatch.setattr(live, "_background", lambda: True)     # headless: at once
     m.scratch_iridescence.sigma_um = 70.0
     assert len(calls) == 2 and calls[1]["sigma_um"] == pytest.approx(70.0)
+
+
+def test_keyframed_settings_reach_the_sockets_before_the_frame_is_evaluated(addon, mat):
+    """An animation render syncs a frame right after ``frame_change_pre``: the sockets must hold that frame's
+    keyed values already there (evaluated from the F-curves), tint channels included."""
+    import bpy
+
+    live = addon.live
+    mat.scratch.density = 0.1
+    mat.scratch.keyframe_insert("density", frame=1)
+    mat.scratch.density = 0.9
+    mat.scratch.keyframe_insert("density", frame=11)
+    mat.scratch.tint = (1.0, 1.0, 1.0)
+    mat.scratch.keyframe_insert("tint", index=1, frame=1)
+    mat.scratch.tint = (1.0, 0.2, 1.0)
+    mat.scratch.keyframe_insert("tint", index=1, frame=11)
+    scene = bpy.context.scene
+    scene.frame_current = 6          # no evaluation: only the pre handler runs
+    live._on_frame_pre(scene)
+    controls = mat.node_tree.nodes["Scratch Controls"]
+    assert controls.inputs["Density"].default_value == pytest.approx(0.5, abs=0.05)   # eased: near the middle
+    assert 0.2 < controls.inputs["Tint"].default_value[1] < 1.0
+    assert controls.inputs["Tint"].default_value[0] == pytest.approx(1.0)
