@@ -154,11 +154,11 @@ def render(out: str, samples: int = 32, res=(320, 240), seed: int = 0, osl: bool
         raise ValueError(f"res must be (width, height) in pixels, got {res!r}")
     w = int(materials.check_range("res width", res[0], 4, 16384))
     h = int(materials.check_range("res height", res[1], 4, 16384))
-    check_output_path(out)
     scene = bpy.context.scene
     for mat in bpy.data.materials:  # scratches follow UVs: a mesh without them cannot render them
         if mat.get("scratch_addon_kind") == "scratch_svbrdf":
             scratch_material.check_uvs(mat)
+    out = check_output_path(out)  # before the render, not after it
     osl = bool(osl or scene.cycles.shading_system or _uses_osl(scene))
     _render.configure_cycles(scene, samples=samples, res=(w, h), seed=seed, osl=osl)
     scene.view_settings.view_transform = "AgX" if out.lower().endswith(".png") else "Standard"

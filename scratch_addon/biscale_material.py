@@ -25,7 +25,7 @@ import numpy as np
 from ..node_groups import biscale as biscale_groups
 from ..osl import biscale_reference
 from ..precompute.biscale import fit as fitmod
-from ..precompute.biscale.bake import bake_tables, get_tile, mesh_hash, table_dir  # noqa: F401 - re-exports
+from ..precompute.biscale.bake import bake_tables, check_inputs, get_tile, mesh_hash, table_dir  # noqa: F401 - re-exports
 from . import osl_compile, render_paths, transaction
 from .keywords import checked
 from .materials import new_material
@@ -196,12 +196,13 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     checked before the bake; a failure leaves ``target``'s material slot as it was and no new material."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    check_inputs([{"model": "lambert"}], n_lobes, **opts)  # every option before any work (the slots come later)
     if mode == "reference":
         max_res = biscale_reference.MAX_DIR_RES
         dr = opts.get("dir_res", 10)
         if dr > max_res:
-            raise ValueError(f"dir_res: the reference mode compiles the table into OSL and needs dir_res <= "
-                             f"{max_res}, got {dr}")
+            raise ValueError(f"dir_res: the reference mode (Exact Reference) compiles the table into OSL and needs "
+                             f"dir_res <= {max_res}, got {dr}")
     if target is not None and (not isinstance(target, bpy.types.Object) or target.type != "MESH"):
         raise ValueError(f"target: expected a mesh object, got {getattr(target, 'type', type(target).__name__)!r}")
     step = progress or (lambda f: None)

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..precompute.biscale import geometry as geo
 from . import ui_utils
-from .ui_utils import USER_ERRORS, progress, report_error, reported_warnings
+from .ui_utils import USER_ERRORS, op_labels, progress, report_error, reported_warnings
 
 
 def tile_mesh(kind: str, **params):
@@ -85,8 +85,8 @@ class SCRATCH_OT_add_biscale_tile(bpy.types.Operator):
                 raise ValueError(f"image: no image named {self.image!r} (load one first)")
             tile = tile_mesh(self.kind, n_sides=self.n_sides, height=self.height, depth=self.depth,
                              n_rods=self.n_rods, tilt=self.tilt, n_threads=self.n_threads, image=img, seed=self.seed)
-        except USER_ERRORS as exc:
-            return report_error(self, exc)
+        except USER_ERRORS as exc:  # named as in the panel: a rods tile's "length" is the Height field
+            return report_error(self, exc, op_labels(self, length="Height", height_scale="Height"))
         obj = add_tile_object(context, tile, name=f"Bi-scale {self.kind.title()}")
         for o in context.view_layer.objects:
             o.select_set(False)
@@ -136,8 +136,8 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
                 mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes, progress=update,
                                                  depsgraph=context.evaluated_depsgraph_get(),
                                                  mode=self.mode.lower(), n_facets=self.n_facets, dir_res=self.dir_res)
-        except USER_ERRORS as exc:
-            return report_error(self, exc)
+        except USER_ERRORS as exc:  # named as in the panel (Direction Resolution, not dir_res)
+            return report_error(self, exc, op_labels(self))
         reused = " (tile reused)" if info["reused_tile"] else ""
         self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
         if info["mode"] == "reference":

@@ -25,6 +25,7 @@ from ..osl import iridescent_layer as layer_gen
 from ..precompute.iridescence import layer
 from ..precompute.iridescence import scratch_set
 from . import compat, materials, osl_compile, render_paths, transaction
+from .keywords import checked
 
 
 NODE_NAME = "Iridescent Scratch Layer"
@@ -243,6 +244,7 @@ def shader_source(scratches, sigma_um=60.0, route="lobes", samples=1, base_blend
     return layer_gen.generate(spec)
 
 
+@checked
 def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samples=1, base_blend=True, scene=None,
                  candidates=4):
     """Insert (or regenerate in place) the iridescent layer on ``material``; returns the script node.

@@ -136,6 +136,11 @@ def _jsonable(v):
     return v.tolist() if hasattr(v, "tolist") else float(v)
 
 
+def shader_source(params: ScratchParams, brdf, lobe_data, **spec_options) -> str:
+    """The specialised OSL source of the scratch SV-BRDF (``osl.scratch_svbrdf.source``) for this Blender."""
+    return scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+
+
 def build(material: bpy.types.Material, params: ScratchParams, progress=None, **spec_options) -> bpy.types.Material:
     """(Re)build ``material``'s node tree for ``params``; ``progress(fraction)`` is called along the way.
 
@@ -145,12 +150,12 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
     the same scratched fraction in fewer layers), because it compiles every layer into one shader."""
     step = progress or (lambda _f: None)
     step(0.05)
-    tab = tables(params) if spec_options else prepare(params)
+    tab = tables(params)
     brdf, lobe_data, svm_lobes = tab["brdf"], tab["lobes"], tab["svm_lobes"]
     step(0.7)
-    src = tab.get("src")
-    if params.backend != "svm" and spec_options:
-        src = scratch_svbrdf.source(params, brdf, lobe_data, voronoi_int2=bpy.app.version >= (5, 0, 0), **spec_options)
+    src = None
+    if params.backend != "svm":
+        src = shader_source(params, brdf, lobe_data, **spec_options)
     step(0.8)
     with transaction.rebuild(material):  # the old nodes stay until the new tree is complete (compiled)
         _build_tree(material, material.node_tree, params, src, lobe_data, svm_lobes, step)
@@ -378,13 +383,20 @@ def prepare(params: ScratchParams) -> dict:
     src = None
     if params.backend != "svm":
         lp = params.layers
-        key = (live_keys(params, "")[0], None if lp is None else (lp.length, lp.width, lp.density))
-        src = _SOURCES.get(key)
+        lobes = tab["lobes"]
+        ident = [np.ascontiguousarray(lobes[k]).tobytes() for k in ("cdf", "w_m", "w_0") if lobes.get(k) is not None] \
+            if isinstance(lobes, dict) and "cdf" in lobes else None
+        import hashlib
+
+        key = None if ident is None else (live_keys(params, "")[0], None if lp is None else (lp.length, lp.width,
+                                          lp.density), hashlib.sha1(b"".join(ident)).hexdigest())
+        src = _SOURCES.get(key) if key is not None else None
         if src is None:
-            src = scratch_svbrdf.source(params, tab["brdf"], tab["lobes"], voronoi_int2=bpy.app.version >= (5, 0, 0))
-            if len(_SOURCES) > 32:
-                _SOURCES.pop(next(iter(_SOURCES)))
-            _SOURCES[key] = src
+            src = shader_source(params, tab["brdf"], tab["lobes"])
+            if key is not None:   # the same tables (a cache miss gives float64, a hit float32: other text)
+                if len(_SOURCES) > 32:
+                    _SOURCES.pop(next(iter(_SOURCES)))
+                _SOURCES[key] = src
     return dict(tab, src=src)
 
 

@@ -3,6 +3,7 @@ assignment, polls."""
 from __future__ import annotations
 
 import contextlib
+import re
 import warnings
 
 from ..precompute.tables import files
@@ -24,9 +25,33 @@ def error_line(exc: BaseException) -> str:
     return lines[0] if len(lines) == 1 else f"{lines[0]} {lines[1]}"
 
 
-def report_error(op, exc: BaseException) -> set:
-    """Report ``exc`` as one ERROR line; returns ``{"CANCELLED"}`` for ``execute`` to return."""
-    op.report({"ERROR"}, error_line(exc))
+def op_labels(op, **aliases) -> dict:
+    """Parameter names an error message may use -> what the user sees in ``op``'s panel: each operator
+    property's identifier -> its UI name, plus ``aliases`` (names of inner functions' parameters that an
+    operator property feeds, e.g. ``length="Height"`` for a rods tile)."""
+    labels = {p.identifier: p.name for p in op.properties.bl_rna.properties if p.identifier != "rna_type" and p.name}
+    labels.update(aliases)
+    return labels
+
+
+def relabel(line: str, labels: dict) -> str:
+    """``line`` with the parameter names of ``labels`` replaced by their user-facing labels: a name with an
+    underscore (``dir_res``) wherever it stands as a word, a plain word (``height``) only where it leads
+    the message as ``height: ...`` (so ``no image named ...`` keeps its words)."""
+    for name in sorted(labels, key=len, reverse=True):
+        label = labels[name]
+        if "_" in name:
+            line = re.sub(rf"(?<![\w.']){re.escape(name)}(?![\w'])", lambda _m: label, line)
+        else:
+            line = re.sub(rf"^{re.escape(name)}(?=:)", lambda _m: label, line)
+    return line
+
+
+def report_error(op, exc: BaseException, labels: dict | None = None) -> set:
+    """Report ``exc`` as one ERROR line (parameter names turned into ``labels``, see ``op_labels``);
+    returns ``{"CANCELLED"}`` for ``execute`` to return."""
+    line = error_line(exc)
+    op.report({"ERROR"}, relabel(line, labels) if labels else line)
     return {"CANCELLED"}
 
 

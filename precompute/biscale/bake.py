@@ -16,7 +16,8 @@ import warnings
 import numpy as np
 
 from ..tables import cache, files
-from .effective import BiscaleTile
+from .brdfs import material_lobes
+from .effective import BiscaleTile, check_options
 from .fit import fit_closures
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -41,6 +42,7 @@ def materials_hash(materials) -> str:
 def get_tile(V, F, M, P, color_weights=None, **opts):
     """Cached ``BiscaleTile`` (visibility + N reused when only colours or materials change); returns
     ``(tile, reused)``."""
+    opts = check_options(opts)
     key = (mesh_hash(V, F, M, P), tuple(sorted(opts.items())))
     tile = _TILE_CACHE.get(key)
     hit = tile is not None
@@ -73,6 +75,20 @@ def table_dir(exr_dir: str | None = None) -> str:
         return root
 
 
+def check_inputs(materials, n_lobes: int = 4, **opts) -> dict:
+    """Everything a bake is given besides the mesh, checked before any work (so a bake never fails
+    after minutes on a bad option): the options (``effective.check_options``: unknown keyword or out of
+    range -> ValueError naming the keyword), ``n_lobes`` and the small-scale material dicts.  Returns the
+    completed options."""
+    if isinstance(n_lobes, (bool, np.bool_)) or not isinstance(n_lobes, (int, np.integer)) or not 0 <= n_lobes <= 8:
+        raise ValueError(f"n_lobes: expected an integer in [0, 8], got {n_lobes!r}")
+    if not isinstance(materials, (list, tuple)) or len(materials) == 0:
+        raise ValueError("materials: expected a non-empty list of material dicts")
+    for m in materials:
+        material_lobes(m)
+    return check_options(opts, also_accepted=("n_lobes", "exr_dir", "progress", "color_weights"))
+
+
 def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None, **opts):
     """Effective BRDF (eq. 8 via §3.4-3.7), its closure fit (``fit.fit_closures``) and the table saved as
     EXR in ``exr_dir`` (default: the cache folder's ``biscale``; checked before the bake, see ``table_dir``).
@@ -80,6 +96,7 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     ``info["exr"]`` is None when the table could not be written after all (the disk filled during the bake:
     a ``CacheWarning``, the bake itself is kept)."""
     step = progress or (lambda f: None)
+    check_inputs(materials, n_lobes, **opts)
     exr_dir = table_dir(exr_dir)
     M = np.minimum(M, len(materials) - 1)
     tile, reused = get_tile(V, F, M, P, **opts)

@@ -30,6 +30,8 @@ redo only step 4 (visibility reused), material edits only step 6 (M comes from t
 """
 from __future__ import annotations
 
+import difflib
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -45,7 +47,7 @@ from .svd import LowRank, random_projection_svd, random_projection_svd_streamed
 from .visibility import visibility_matrix
 
 __all__ = ["BiscaleTile", "EffectiveBRDF", "effective_brdf", "precompute_M", "brute_force_fr", "brute_force_fr_at", "psnr",
-           "DEFAULTS", "render_reference_fr"]
+           "DEFAULTS", "check_options", "render_reference_fr"]
 
 M_VERSION = "1"
 DEFAULTS = dict(n_facets=10000, dir_res=10, normal_res=81, smooth_normals=False, seed=0,
@@ -184,6 +186,52 @@ class EffectiveBRDF:
         return cls(np.stack([ch[c] for c in "RGB"], -1).astype(np.float64), int(meta["dir_res"]), meta)
 
 
+# ----------------------------------------------------------------------------- options
+#: integer options: (lo, hi); ``normal_res`` must also be odd (a cell-centred grid with a pole cell)
+_INT_OPTS = {"n_facets": (16, 1_000_000), "dir_res": (2, 64), "normal_res": (5, 201), "seed": (0, 2**63 - 1),
+             "l_N": (1, 1024), "l_M": (1, 1024), "n_power_M": (0, 10)}
+_FRACTION_OPTS = ("power_N", "power_M")
+_BOOL_OPTS = ("smooth_normals", "use_cache")
+
+
+def check_options(opts: dict, also_accepted: tuple = ()) -> dict:
+    """The bi-scale tile options (``DEFAULTS`` completed by ``opts``; keys in ``also_accepted`` are the
+    caller's own and skipped), every one checked up front so a
+    bake never fails half-way on one: ValueError naming the option as the caller spelt it (the keyword
+    of ``bake_tables`` / ``BiscaleTile``, not the name of an inner function's parameter) and what is
+    accepted.  ``l_N``, ``l_M``: sketch sizes of the random-projection SVD (Table 2), bounded so that
+    memory stays bounded; ``power_*``: fraction of the power kept (§3.5)."""
+    accepted = [*also_accepted, *DEFAULTS]
+    unknown = [k for k in opts if k not in accepted]
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], accepted, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"unknown bi-scale option {unknown[0]!r}{hint}; accepted: {', '.join(accepted)}")
+    o = {**DEFAULTS, **{k: v for k, v in opts.items() if k in DEFAULTS}}
+    for name, (lo, hi) in _INT_OPTS.items():
+        v = o[name]
+        odd = name == "normal_res"
+        if (isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi
+                or (odd and v % 2 == 0)):
+            what = "a non-negative integer" if name == "seed" else f"an {'odd ' if odd else ''}integer in [{lo}, {hi}]"
+            raise ValueError(f"{name}: expected {what}, got {v!r}")
+        o[name] = int(v)
+    for name in _FRACTION_OPTS:
+        v = o[name]
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = math.nan
+        if isinstance(v, (bool, np.bool_, str)) or not 0.0 < x <= 1.0:
+            raise ValueError(f"{name}: expected a fraction in (0, 1], got {v!r}")
+        o[name] = x
+    for name in _BOOL_OPTS:
+        if not isinstance(o[name], (bool, np.bool_)):
+            raise ValueError(f"{name}: expected True or False, got {o[name]!r}")
+        o[name] = bool(o[name])
+    return o
+
+
 # ----------------------------------------------------------------------------- tile
 class BiscaleTile:
     """A periodic small-scale tile with cached facets, visibility and BVNDF (§3.2-3.4).
@@ -192,16 +240,8 @@ class BiscaleTile:
     See ``DEFAULTS`` for the options.  ``.effective_brdf(materials)`` is the fast path."""
 
     def __init__(self, vertices, faces, face_material=None, period: float = 1.0, color_weights=None, **opts):
-        unknown = set(opts) - set(DEFAULTS)
-        if unknown:
-            raise ValueError(f"options: unknown {sorted(unknown)}; allowed {sorted(DEFAULTS)}")
-        self.opts = {**DEFAULTS, **opts}
+        self.opts = check_options(opts)
         o = self.opts
-        if not (isinstance(o["n_facets"], (int, np.integer)) and 16 <= o["n_facets"] <= 1_000_000):
-            raise ValueError(f"n_facets: expected an integer in [16, 1000000], got {o['n_facets']!r}")
-        for name in ("power_N", "power_M"):
-            if not (0 < float(o[name]) <= 1):
-                raise ValueError(f"{name}: expected a fraction in (0, 1], got {o[name]!r}")
         self.tile: Tile = validate_tile(vertices, faces, face_material, period)
         self.dirs = direction_grid(o["dir_res"])
         self.normals = normal_grid(o["normal_res"])

@@ -101,6 +101,7 @@ def test_an_unusable_cache_folder_falls_back_and_the_operator_warns(addon, scene
     _plane(addon, scene)
     not_a_folder = tmp_path / "cache_is_a_file"
     not_a_folder.write_text("x")
+    previous = tables._cache_dir  # the extension's folder, set by its preferences: restored below
     tables.set_cache_dir(not_a_folder)
     try:
         assert bpy.ops.scratch.add_preset_material(preset="fig14a_shallow") == {"FINISHED"}
@@ -124,7 +125,7 @@ def test_an_unusable_cache_folder_falls_back_and_the_operator_warns(addon, scene
         prefs.ScratchAddonPreferences.draw(type("P", (), {"layout": Layout()})(), bpy.context)
         assert any("unusable" in ln for ln in lines)
     finally:
-        tables.set_cache_dir(None)
+        tables.set_cache_dir(previous)
 
 
 # ----------------------------------------------------------------------------- bi-scale: folder checked first
@@ -159,6 +160,7 @@ def test_bake_operator_with_an_unusable_table_folder_still_bakes(addon, scene, b
     folder = tmp_path / "cache"
     folder.mkdir()
     (folder / "biscale").write_text("a file where the table folder should be")
+    previous = tables._cache_dir
     tables.set_cache_dir(folder)
     target = addon.render.add_plane(scene, size=2.0)
     for o in bpy.context.view_layer.objects:
@@ -167,7 +169,38 @@ def test_bake_operator_with_an_unusable_table_folder_still_bakes(addon, scene, b
     try:
         assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=200, dir_res=4, n_lobes=1) == {"FINISHED"}
     finally:
-        tables.set_cache_dir(None)
+        tables.set_cache_dir(previous)
     mat = target.data.materials[0]
     assert mat["scratch_addon_kind"] == "biscale" and mat["biscale_table"].startswith(str(folder))
     assert np.isfinite(mat["biscale_fit_psnr"])
+
+
+# ----------------------------------------------------------------------------- bi-scale: user-facing option names
+
+def test_biscale_operator_errors_name_the_panel_fields_not_internal_names(addon, scene, biscale):
+    import bpy
+
+    _bmat, tile = biscale
+    with pytest.raises(RuntimeError) as err:  # a rods tile's Height field feeds geometry.rods_tile(length=...)
+        bpy.ops.scratch.add_biscale_tile(kind="RODS", height=7.0)
+    msg = str(err.value).strip()
+    assert msg.startswith("Error: Height: expected a number in") and "length" not in msg, msg
+    target = addon.render.add_plane(scene, size=2.0)
+    bpy.context.view_layer.objects.active = tile
+    t0 = time.perf_counter()
+    with pytest.raises(RuntimeError) as err:  # the reference mode compiles the table into OSL: bounded size
+        bpy.ops.scratch.bake_biscale(target=target.name, mode="REFERENCE", dir_res=24, n_facets=100000)
+    msg = str(err.value).strip()
+    assert time.perf_counter() - t0 < 2.0 and len(msg.splitlines()) == 1
+    assert "Direction Resolution" in msg and "dir_res" not in msg, msg
+    assert not target.data.materials
+
+
+def test_biscale_api_unknown_option_is_named_before_the_bake(addon, scene, biscale):
+    bmat, tile = biscale
+    t0 = time.perf_counter()
+    with pytest.raises(ValueError, match=r"unknown bi-scale option 'facets' \(did you mean 'n_facets'\?\)"):
+        bmat.bake(tile, None, facets=100000, dir_res=16)
+    with pytest.raises(ValueError, match=r"^l_M: expected an integer in \[1, 1024\], got 0$"):
+        bmat.bake(tile, None, l_M=0, n_facets=100000)
+    assert time.perf_counter() - t0 < 2.0

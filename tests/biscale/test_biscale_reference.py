@@ -199,7 +199,7 @@ def test_bake_operator_reference_mode(addon, scene, bmat):
         target = addon.render.add_plane(bpy.context.scene, size=2.0)
         bpy.context.view_layer.objects.active = tile
         bpy.context.scene.cycles.shading_system = False
-        with pytest.raises(RuntimeError, match="dir_res"):
+        with pytest.raises(RuntimeError, match="Direction Resolution"):  # the panel's name for dir_res
             bpy.ops.scratch.bake_biscale(target=target.name, n_facets=500, dir_res=16, mode="REFERENCE")
         assert not target.data.materials                      # nothing assigned on error
         res = bpy.ops.scratch.bake_biscale(target=target.name, n_facets=800, dir_res=6, mode="REFERENCE")
