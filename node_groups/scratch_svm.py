@@ -28,6 +28,40 @@ import numpy as np
 from ..precompute.cycles.glossy import glossy_node_params
 
 _PI = math.pi
+#: custom property marking the table lobe's Glossy node
+TABLE_GLOSSY = "scratch_table_glossy"
+#: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
+LAYER_CONST = "scratch_layer_const"
+#: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
+TABLE_IMAGE_PREFIX = "Scratch table "
+
+
+def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
+    """Write new layer rotations Θ_k and offsets ξ_k (eq. 7) into the nodes ``build`` tagged for ``twin``
+    (same layer count): each layer's Mapping node (``layer_coordinates``), its offset node when the scratch
+    size is a socket, and the layer-pick constants; returns how many nodes were written."""
+    n = 0
+    for node in tree.nodes:
+        for tag in (node.get(LAYER_CONST) or "").split(";"):
+            parts = tag.split("/")
+            if len(parts) != 3 or parts[0] != twin or int(parts[2]) >= len(theta_k):
+                continue
+            kind, k = parts[1], int(parts[2])
+            theta, xi = float(theta_k[k]), (float(xi_k[k][0]), float(xi_k[k][1]))
+            if kind == "map":
+                _set_mapping(node, theta, xi)
+            elif kind == "xi":
+                node.inputs[1].default_value = (xi[0], xi[1], 0.0)
+            elif kind == "theta2":
+                node.inputs[2].default_value = theta
+            elif kind == "theta3":
+                node.inputs[3].default_value = theta
+            elif kind == "angle":
+                node.inputs["Angle"].default_value = theta
+            else:
+                continue
+            n += 1
+    return n
 
 
 class _G:
@@ -105,13 +139,21 @@ def lobe_images(name: str, entry: dict, alpha_x: float) -> tuple[bpy.types.Image
 
 
 def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint=(1, 1, 1), base_socket=None,
-          name: str = "scratch", cost_off: int = 0) -> bpy.types.NodeSocket:
+          name: str = "scratch", cost_off: int = 0, controls: dict | None = None,
+          twin: str = "svm") -> bpy.types.NodeSocket:
     """Add the scratch SV-BRDF to ``tree``; returns the output closure socket (eq. 4).
+
+    ``controls``: optional output sockets {"length", "width", "density", "tint"} that replace the
+    compiled-in constants ``layers.length`` (l), ``layers.width`` (w), ``layers.density`` (d, eq. 7) and
+    ``tint`` (the live-editable, animatable values of ``scratch_addon.live``).  ``twin`` names this copy for
+    ``set_layer_constants`` ("svm" or "eevee").
 
     ``cost_off`` (bench/scratch_cost.py only) switches stages off to time them, as the OSL ``COST_OFF``:
     bit 1 the layer Voronoi (a grid of cell centres instead), 4 the CDF search (bin straight from h),
     8 the closure set-up (untilted white lobe)."""
     g = _G(tree)
+    controls = controls or {}
+    tint = controls.get("tint", tint)
     geo = g.node("ShaderNodeNewGeometry")
     tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
     uvn = g.node("ShaderNodeUVMap")
@@ -143,9 +185,14 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         alpha_sum = 1.0
     else:
         uv = uvn.outputs["UV"]
+        size = (float(layers.length), float(layers.width), 1.0)
+        if "length" in controls or "width" in controls:   # live sockets: Scale = (l, w, 1) from the controls
+            size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
+        dens = controls.get("density", None)
+        threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
         acc, accs = None, []
         for k in range(layers.n_layers):
-            y = layer_coordinates(g, uv, theta_k[k], layers.length, layers.width, xi_k[k])
+            y = layer_coordinates(g, uv, theta_k[k], size, xi_k[k], tag=f"{twin}/%s/{k}")
             if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
                 dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
             else:
@@ -154,7 +201,7 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
                 vor.inputs["Randomness"].default_value = 1.0
                 g._set(vor.inputs["Vector"], y)
                 dist = vor.outputs["Distance"]
-            a = g.math("LESS_THAN", dist, float(layers.density) + 1e-7)  # [F1]_d, eq. 7
+            a = g.math("LESS_THAN", dist, threshold)  # [F1]_d, eq. 7
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
         alpha_sum = acc
@@ -167,6 +214,10 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
             g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
             g._set(mix.inputs[2], theta_sel)
             g._set(mix.inputs[3], float(theta_k[k]))
+            tags = [f"{twin}/theta3/{k}"]
+            if k == layers.n_layers - 2:   # input 2 holds the last layer's Θ
+                tags.append(f"{twin}/theta2/{k + 1}")
+            mix[LAYER_CONST] = ";".join(tags)
             theta_sel = mix.outputs[0]
     # scratch frame of the picked layer: u = cos Θ t + sin Θ (N x t) = t rotated about N by Θ, v = N x u
     if theta_sel is None:
@@ -176,6 +227,8 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         g._set(rot.inputs["Vector"], t)
         g._set(rot.inputs["Axis"], N)
         g._set(rot.inputs["Angle"], theta_sel)
+        if layers.n_layers == 1:
+            rot[LAYER_CONST] = f"{twin}/angle/0"
         u = rot.outputs["Vector"]
     v = g.vmath("CROSS_PRODUCT", N, u)
     # φo = atan2(wo.v, wo.N)
@@ -203,18 +256,44 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     return mixs.outputs[0]
 
 
-def layer_coordinates(g, uv, theta: float, length: float, width: float, xi) -> bpy.types.NodeSocket:
-    """Eq. 7 in one Mapping node: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
-    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]].  Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so
-    r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and L = -R_z(Θ) S ξ."""
-    c, s_ = math.cos(theta), math.sin(theta)
-    sx, sy = float(length) * float(xi[0]), float(width) * float(xi[1])
+def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None) -> bpy.types.NodeSocket:
+    """Eq. 7: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
+    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]], in one Mapping node when ``size`` = (l, w) is constant.
+    Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and
+    L = -R_z(Θ) S ξ.  When ``size`` is a socket (live controls), L = 0 and one Add node adds ξ.
+    ``tag`` ("<twin>/%s/<k>") marks the nodes for ``set_layer_constants``."""
     m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
     g._set(m.inputs["Vector"], uv)
-    m.inputs["Location"].default_value = (-(c * sx - s_ * sy), -(s_ * sx + c * sy), 0.0)
+    g._set(m.inputs["Scale"], size)
+    if tag:
+        m[LAYER_CONST] = tag % "map"
+    _set_mapping(m, theta, xi)
+    if not isinstance(size, bpy.types.NodeSocket):
+        return m.outputs["Vector"]
+    add = g.vmath("ADD", m.outputs["Vector"], (float(xi[0]), float(xi[1]), 0.0))
+    if tag:
+        add.node[LAYER_CONST] = tag % "xi"
+    return add
+
+
+def _set_mapping(m, theta: float, xi) -> None:
+    """Rotation and Location of a ``layer_coordinates`` Mapping node for layer rotation Θ and offset ξ."""
     m.inputs["Rotation"].default_value = (0.0, 0.0, float(theta))
-    m.inputs["Scale"].default_value = (float(length), float(width), 1.0)
-    return m.outputs["Vector"]
+    if m.inputs["Scale"].is_linked:   # ξ is added after the mapping
+        m.inputs["Location"].default_value = (0.0, 0.0, 0.0)
+        return
+    c, s_ = math.cos(theta), math.sin(theta)
+    sx, sy = float(m.inputs["Scale"].default_value[0]) * float(xi[0]), float(m.inputs["Scale"].default_value[1]) * float(xi[1])
+    m.inputs["Location"].default_value = (-(c * sx - s_ * sy), -(s_ * sx + c * sy), 0.0)
+
+
+def _tinted(g, colour, tint):
+    """``colour`` times the scratch tint (a constant RGB, skipped when white, or a Color socket)."""
+    if isinstance(tint, bpy.types.NodeSocket):
+        return g.vmath("MULTIPLY", colour, tint)
+    if tuple(tint)[:3] != (1.0, 1.0, 1.0):
+        return g.vmath("MULTIPLY", colour, tuple(float(c) for c in tuple(tint)[:3]))
+    return colour
 
 
 def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
@@ -246,8 +325,7 @@ def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
                 r = g.math("POWER", x, gamma)
                 f = r if use_r_m else g.math("SUBTRACT", 1.0, r)
                 colour = g.vmath("SCALE", colour, scale=f)
-            if tuple(tint) != (1.0, 1.0, 1.0):
-                colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+            colour = _tinted(g, colour, tint)
             glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
             g._set(glossy.inputs["Color"], colour)
             g._set(glossy.inputs["Roughness"], rough)
@@ -313,8 +391,8 @@ def table_images(name: str, lobe_data: dict) -> dict:
     c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
     c[..., 2] = lobe_data["cen"]
     c[..., 3] = phi[:, None]
-    out = {"N": _data_image("Scratch table N", n), "A": _data_image("Scratch table A", a),
-           "C": _data_image("Scratch table C", c)}
+    out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n), "A": _data_image(TABLE_IMAGE_PREFIX + "A", a),
+           "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
     if lobe_data.get("basis") is not None:
         coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
         y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
@@ -322,7 +400,7 @@ def table_images(name: str, lobe_data: dict) -> dict:
         basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
         b = np.zeros(basis.shape[:2] + (4,))
         b[..., :3] = basis
-        out.update(Y=_data_image("Scratch table Y", y), B=_data_image("Scratch table Btheta", b))
+        out.update(Y=_data_image(TABLE_IMAGE_PREFIX + "Y", y), B=_data_image(TABLE_IMAGE_PREFIX + "Btheta", b))
     return out
 
 
@@ -395,34 +473,17 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
             Y = term if Y is None else g.vmath("ADD", Y, term)
         Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
         colour = g.vmath("SCALE", Y, scale=P)
-    if tuple(tint) != (1.0, 1.0, 1.0):
-        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
+    colour = _tinted(g, colour, tint)
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
     ax = float(lobe_data["alpha_x"])
     ay = max(float(lobe_data["alpha_y"]), ax)
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+    glossy[TABLE_GLOSSY] = True   # its roughness follows the table (scratch_addon.scratch_material.apply_tables)
     rough, aniso = glossy_node_params(ax, min(ay, 1.0))
     g._set(glossy.inputs["Anisotropy"], aniso)
     g._set(glossy.inputs["Tangent"], u)
     if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and the node kept alive)
         g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, phi_s), 1e-9, 1.0),
-                                                  rough))
-        return glossy.outputs[0]
-    g._set(glossy.inputs["Color"], colour)
-    g._set(glossy.inputs["Roughness"], rough)
-    g._set(glossy.inputs["Normal"], n_l)
-    return glossy.outputs[0]
-    if tuple(tint) != (1.0, 1.0, 1.0):
-        colour = g.vmath("MULTIPLY", colour, tuple(float(c) for c in tint))
-    # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
-    ax = float(lobe_data["alpha_x"])
-    ay = max(float(lobe_data["alpha_y"]), ax)
-    glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
-    rough, aniso = glossy_node_params(ax, min(ay, 1.0))
-    g._set(glossy.inputs["Anisotropy"], aniso)
-    g._set(glossy.inputs["Tangent"], u)
-    if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and fr kept alive)
-        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, fr), 1e-9, 1.0),
                                                   rough))
         return glossy.outputs[0]
     g._set(glossy.inputs["Color"], colour)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import bpy
 
 from . import api, materials, operators, osl_compile, panels, preferences, presets, properties, render  # noqa: F401
-from . import biscale_material, biscale_ops, iridescence_material, iridescence_ops, microgeometry_ops  # noqa: F401
+from . import biscale_material, biscale_ops, iridescence_material, iridescence_ops, live, microgeometry_ops  # noqa: F401
 from . import biscale_truth, merl_ops, tabulated_material  # noqa: F401
 
 _classes = (*preferences.classes, *properties.classes, *iridescence_material.classes, *operators.classes,
@@ -23,9 +23,11 @@ def register() -> None:
         bpy.utils.register_class(cls)
     properties.register_pointer()
     preferences.apply_cache_dir()
+    live.register()
 
 
 def unregister() -> None:
+    live.unregister()
     properties.unregister_pointer()
     for cls in reversed(_classes):
         bpy.utils.unregister_class(cls)

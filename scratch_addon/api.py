@@ -100,8 +100,12 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
         with transaction.new_datablocks():  # a failed build leaves no half material behind
             material = materials.new_material(name or f"Scratched {preset or 'material'}")
             scratch_material.build(material, spec, progress=progress)
-    if preset is not None and hasattr(material, "scratch"):  # add-on registered: keep the UI in sync
-        material.scratch.from_params(merged)
+    if hasattr(material, "scratch"):  # add-on registered: keep the UI in sync
+        from . import live
+
+        if preset is not None:
+            material.scratch.from_params(merged)
+        live.mark_synced(material)
     return material
 
 

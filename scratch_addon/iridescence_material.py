@@ -374,14 +374,30 @@ def refresh_lights(scene=None) -> int:
 
 # ----------------------------------------------------------------------------- UI state
 def _rebuild(pg, context):
+    """Every layer setting is compiled into the shader (σ sizes the reach grid; route, samples, candidates and
+    base blend select code): a change regenerates it, debounced in the UI so a drag compiles once
+    (``live.call_debounced``), at once headless."""
     mat = pg.id_data
-    if isinstance(mat, bpy.types.Material) and layer_node(mat) is not None:
+    if not isinstance(mat, bpy.types.Material) or layer_node(mat) is None:
+        return
+    name = mat.name
+    scene_name = context.scene.name if context and getattr(context, "scene", None) else None
+
+    def apply():
+        m = bpy.data.materials.get(name)
+        if m is None or layer_node(m) is None:
+            return
+        p = m.scratch_iridescence
         try:
-            insert_layer(mat, None, sigma_um=pg.sigma_um, route=pg.route.lower(), samples=pg.samples,
-                         base_blend=pg.base_blend, scene=context.scene if context else None,
-                         candidates=pg.candidates, base_weight=pg.base_weight.lower(), shadows=pg.shadows)
-        except (ValueError, osl_compile.OSLCompileError) as exc:
+            insert_layer(m, None, sigma_um=p.sigma_um, route=p.route.lower(), samples=p.samples,
+                         base_blend=p.base_blend, scene=bpy.data.scenes.get(scene_name) if scene_name else None,
+                         candidates=p.candidates, base_weight=p.base_weight.lower(), shadows=p.shadows)
+        except (ValueError, OSError, osl_compile.OSLCompileError) as exc:
             print(f"scratch_addon: iridescent layer not rebuilt: {exc}")
+
+    from . import live
+
+    live.call_debounced("iridescence:" + name, apply)
 
 
 class SCRATCH_PG_iridescence(bpy.types.PropertyGroup):

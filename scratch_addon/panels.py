@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import render_paths
+from . import live, render_paths
 from .ui_utils import draw_render_path
 
 #: Render engines whose Material tab shows our panels: Cycles, and EEVEE (Material Preview).
@@ -67,7 +67,12 @@ class SCRATCH_PT_material(bpy.types.Panel):
         row.prop(s, "resolution")
         box.prop(s, "mode", expand=True)
         box.prop(s, "backend")
-        col.operator("scratch.update_material", icon="FILE_REFRESH")
+        col.operator("scratch.update_material", icon="FILE_REFRESH")   # forces a full rebuild
+        error = mat.get(live.ERROR_KEY)
+        if error:
+            col.label(text=f"Not updated: {error}", icon="ERROR")
+        elif live.pending():
+            col.label(text="Updating tables…", icon="TIME")
         err = mat.get("scratch_addon_fit_error")
         if err is not None:
             col.label(text=f"Lobe fit error (worst slice): {100 * err:.1f} %")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import bpy
 
 from ..precompute.scratch import fresnel as _fresnel, profiles
+from . import compat, live
 
 PROFILE_ITEMS = [
     ("quartic", "Quartic", "Symmetric quartic bowl; value = depth / width"),
@@ -35,52 +36,59 @@ BASE_ITEMS = [
 METAL_ITEMS = [(k, k.title(), f"n, k of {k} at 650/550/450 nm") for k in sorted(_fresnel.PRESETS)]
 
 
+def _live(prop: str):
+    """Update callback: the material follows the setting at once (``live``; sockets or tables)."""
+    return compat.update(live.updater(prop))
+
+
 class ScratchMaterialSettings(bpy.types.PropertyGroup):
-    profile_type: bpy.props.EnumProperty(name="Profile", items=PROFILE_ITEMS, default="quartic")
-    profile_value: bpy.props.FloatProperty(name="Value", default=0.2, min=0.001, soft_max=2.0,
+    """Every setting updates the material as it changes (``live``): sockets at once, tables after a drag."""
+
+    profile_type: bpy.props.EnumProperty(update=_live("profile_type"), name="Profile", items=PROFILE_ITEMS, default="quartic")
+    profile_value: bpy.props.FloatProperty(update=_live("profile_value"), name="Value", default=0.2, min=0.001, soft_max=2.0,
                                            description="Depth/width ratio (quartic, round) or half angle in degrees (V-groove)")
-    profile_file: bpy.props.StringProperty(name="Profile File", subtype="FILE_PATH")
-    fresnel_type: bpy.props.EnumProperty(name="Fresnel", items=FRESNEL_ITEMS, default="metal")
-    metal: bpy.props.EnumProperty(name="Metal", items=METAL_ITEMS)
-    ior_n: bpy.props.FloatVectorProperty(name="n", size=3, default=(2.91, 2.95, 2.65), min=0.01)
-    ior_k: bpy.props.FloatVectorProperty(name="k", size=3, default=(3.09, 2.93, 2.80), min=0.0)
-    ior: bpy.props.FloatProperty(name="IOR", default=1.5, min=1.0, max=4.0)
-    tint: bpy.props.FloatVectorProperty(name="Tint", subtype="COLOR", size=3, default=(1, 1, 1), min=0, max=1)
-    lobes: bpy.props.IntProperty(name="Lobes (K)", default=8, min=1, max=16,
+    profile_file: bpy.props.StringProperty(update=_live("profile_file"), name="Profile File", subtype="FILE_PATH")
+    fresnel_type: bpy.props.EnumProperty(update=_live("fresnel_type"), name="Fresnel", items=FRESNEL_ITEMS, default="metal")
+    metal: bpy.props.EnumProperty(update=_live("metal"), name="Metal", items=METAL_ITEMS)
+    ior_n: bpy.props.FloatVectorProperty(update=_live("ior_n"), name="n", size=3, default=(2.91, 2.95, 2.65), min=0.01)
+    ior_k: bpy.props.FloatVectorProperty(update=_live("ior_k"), name="k", size=3, default=(3.09, 2.93, 2.80), min=0.0)
+    ior: bpy.props.FloatProperty(update=_live("ior"), name="IOR", default=1.5, min=1.0, max=4.0)
+    tint: bpy.props.FloatVectorProperty(update=_live("tint"), name="Tint", subtype="COLOR", size=3, default=(1, 1, 1), min=0, max=1)
+    lobes: bpy.props.IntProperty(update=_live("lobes"), name="Lobes (K)", default=8, min=1, max=16,
                                  description="At most this many tilted GGX lobes per view slice")
-    lobe_shape: bpy.props.EnumProperty(
+    lobe_shape: bpy.props.EnumProperty(update=_live("lobe_shape"), 
         name="Lobe Shape", default="table",
         items=[("fit", "Fitted", "At most K fitted tilted GGX lobes per view slice (smooth, least noise)"),
                ("box", "Box", "Fitted lobes with a tilt jitter each (stochastic box lobes): closer fit of "
                               "round profiles, slower fit"),
                ("table", "Table", "Tabulated-tilt lobes: the table sampled bin by bin, exact (< 1 %), no fit; "
                                   "a little more noise under small lights")])
-    use_layers: bpy.props.BoolProperty(name="Scratch Layers", default=True,
+    use_layers: bpy.props.BoolProperty(update=_live("use_layers"), name="Scratch Layers", default=True,
                                        description="Off: scratches everywhere (densely brushed)")
-    n_layers: bpy.props.IntProperty(name="Layers", default=4, min=1, max=64)
-    theta_deg: bpy.props.FloatProperty(name="Orientation Spread", default=7.0, min=0.0, max=360.0)
-    length: bpy.props.FloatProperty(name="Length", default=0.2, min=1e-6, precision=5, description="Mean scratch length (UV units)")
-    width: bpy.props.FloatProperty(name="Width", default=2e-4, min=1e-7, precision=6, description="Mean scratch width (UV units)")
-    density: bpy.props.FloatProperty(name="Density", default=0.6, min=0.0, max=1.0)
-    seed: bpy.props.IntProperty(name="Seed", default=0)
-    base_type: bpy.props.EnumProperty(name="Base", items=BASE_ITEMS, default="mirror")
-    base_color: bpy.props.FloatVectorProperty(name="Base Color", subtype="COLOR", size=3, default=(0.5, 0.5, 0.5), min=0, max=1)
-    base_roughness: bpy.props.FloatProperty(name="Base Roughness", default=0.3, min=0.0, max=1.0)
-    diffuse_type: bpy.props.EnumProperty(name="Diffuse Term", items=[
+    n_layers: bpy.props.IntProperty(update=_live("n_layers"), name="Layers", default=4, min=1, max=64)
+    theta_deg: bpy.props.FloatProperty(update=_live("theta_deg"), name="Orientation Spread", default=7.0, min=0.0, max=360.0)
+    length: bpy.props.FloatProperty(update=_live("length"), name="Length", default=0.2, min=1e-6, precision=5, description="Mean scratch length (UV units)")
+    width: bpy.props.FloatProperty(update=_live("width"), name="Width", default=2e-4, min=1e-7, precision=6, description="Mean scratch width (UV units)")
+    density: bpy.props.FloatProperty(update=_live("density"), name="Density", default=0.6, min=0.0, max=1.0)
+    seed: bpy.props.IntProperty(update=_live("seed"), name="Seed", default=0)
+    base_type: bpy.props.EnumProperty(update=_live("base_type"), name="Base", items=BASE_ITEMS, default="mirror")
+    base_color: bpy.props.FloatVectorProperty(update=_live("base_color"), name="Base Color", subtype="COLOR", size=3, default=(0.5, 0.5, 0.5), min=0, max=1)
+    base_roughness: bpy.props.FloatProperty(update=_live("base_roughness"), name="Base Roughness", default=0.3, min=0.0, max=1.0)
+    diffuse_type: bpy.props.EnumProperty(update=_live("diffuse_type"), name="Diffuse Term", items=[
         ("none", "None", "No diffuse term"), ("color", "Color", "Uniform Lambertian term under everything"),
         ("wood", "Wood", "Procedural wood-grain Lambertian term")], default="none")
-    diffuse_color: bpy.props.FloatVectorProperty(name="Diffuse Color", subtype="COLOR", size=3, default=(0.05, 0.12, 0.45),
+    diffuse_color: bpy.props.FloatVectorProperty(update=_live("diffuse_color"), name="Diffuse Color", subtype="COLOR", size=3, default=(0.05, 0.12, 0.45),
                                                  min=0, max=1)
-    mode: bpy.props.EnumProperty(name="Mode", items=[("lobes", "Lobes", "Product path: light sampling kept"),
+    mode: bpy.props.EnumProperty(update=_live("mode"), name="Mode", items=[("lobes", "Lobes", "Product path: light sampling kept"),
                                                      ("reference", "Reference", "Exact table via ray portals (validation)")])
-    backend: bpy.props.EnumProperty(
+    backend: bpy.props.EnumProperty(update=_live("backend"), 
         name="Shaders", default="osl",
         items=[("osl", "OSL + Node Groups", "OSL shader where Cycles runs OSL on the CPU (footprint-filtered "
                                            "scratch coverage), its node-group twin everywhere else (Cycles SVM, "
                                            "GPU, EEVEE)"),
                ("svm", "Node Groups Only", "Only the node-group (SVM) path: GPU, EEVEE and Cycles OSL alike; "
                                           "scratch coverage is sampled per pixel")])
-    resolution: bpy.props.EnumProperty(name="Table", items=[(v, v, f"{v}x{v} scratch BRDF table") for v in ("64", "128", "256", "512")],
+    resolution: bpy.props.EnumProperty(update=_live("resolution"), name="Table", items=[(v, v, f"{v}x{v} scratch BRDF table") for v in ("64", "128", "256", "512")],
                                        default="256")
 
     def to_params(self) -> dict:
@@ -108,7 +116,12 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
                     backend=self.backend)
 
     def from_params(self, params: dict) -> None:
-        """Fill the settings from preset parameters (only the fields a preset names)."""
+        """Fill the settings from preset parameters (only the fields a preset names); the material is not
+        updated (it was built from them: ``api.make_scratched_material``; else press *Update*)."""
+        with live.suspended():
+            self._from_params(params)
+
+    def _from_params(self, params: dict) -> None:
         prof = params.get("profile")
         if isinstance(prof, (tuple, list)):
             self.profile_type, self.profile_value = prof[0], float(prof[1])
@@ -140,6 +153,12 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             self.lobe_shape = "box" if params["box_lobes"] else "fit"
         if "backend" in params:
             self.backend = params["backend"]
+        if "resolution" in params:
+            self.resolution = str(int(params["resolution"]))
+        if "mode" in params:
+            self.mode = params["mode"]
+        if "tint" in params:
+            self.tint = tuple(params["tint"])[:3]
         diffuse = params.get("diffuse")
         if diffuse is None:
             self.diffuse_type = "none"

@@ -15,7 +15,8 @@ import json
 import bpy
 import numpy as np
 
-from ..node_groups import scratch_svm
+from ..node_groups import scratch_controls, scratch_svm
+from ..precompute.cycles.glossy import glossy_node_params
 from ..osl import scratch_svbrdf
 from ..precompute.scratch import layers as scratch_layers
 from ..precompute.scratch.material import (BACKENDS, BASE_TYPES, LOBE_SHAPES, MODES, ScratchParams,  # noqa: F401
@@ -27,6 +28,9 @@ from . import osl_compile, render_paths, transaction
 #: (software GL here, 48x32 px: 16 layers 1.8 s, 18 layers 198 s, 24 layers > 15 min; fig12d's 32 layers as 16
 #: with its wood texture 73 s, as 8: 5.2 s).  Above this count EEVEE renders ``merged_layers``.
 EEVEE_MAX_LAYERS = 8
+#: Build the "Scratch Controls" node (live, animatable sockets; ``live``).  False: the values are compiled in
+#: as constants, as before issue 18 (bench/live_update.py --cost compares the two).
+LIVE_CONTROLS = True
 
 def _check_uvs_for(obj_meshes) -> None:
     for mesh in obj_meshes:
@@ -57,7 +61,14 @@ def _principled_conductor(nodes, fresnel):
 
 
 def _base_node(tree, params: ScratchParams):
-    """The base material closure node (eq. 4's ρ_b), or None."""
+    """The base material closure node (eq. 4's ρ_b, named ``scratch_controls.BASE_NODE_NAME``), or None."""
+    node = _base_node_unnamed(tree, params)
+    if node is not None:
+        node.name = node.label = scratch_controls.BASE_NODE_NAME
+    return node
+
+
+def _base_node_unnamed(tree, params: ScratchParams):
     b = params.base
     kind = b["type"]
     n = tree.nodes
@@ -148,27 +159,39 @@ def build(material: bpy.types.Material, params: ScratchParams, progress=None, **
         src = shader_source(params, brdf, lobe_data, **spec_options)
     step(0.8)
     with transaction.rebuild(material):  # the old nodes stay until the new tree is complete (compiled)
-        return _build_tree(material, material.node_tree, params, src, lobe_data, svm_lobes, step)
+        _build_tree(material, material.node_tree, params, src, lobe_data, svm_lobes, step,
+                    cost_off=int(spec_options.get("cost_off", 0)))
+    if spec_options:  # a non-default specialisation: live edits rebuild it rather than update it in place
+        material[STRUCTURE_KEY] = "specialised " + repr(sorted(spec_options))
+    return material
 
 
-def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes, step) -> bpy.types.Material:
+def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes, step,
+                cost_off: int = 0) -> bpy.types.Material:
     """The node tree of ``build`` (added to ``tree``; ``transaction.rebuild`` removes the old nodes)."""
     out = tree.nodes.new("ShaderNodeOutputMaterial")
     out.location = (900, 0)
     base = _base_node(tree, params)
     if base is not None:
         base.location = (-200, -250)
-    cost_off = int(spec_options.get("cost_off", 0))  # bench/scratch_cost.py only
-    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base, cost_off=cost_off), "osl": None, "eevee": None}
+    live = {}
+    if LIVE_CONTROLS:
+        controls = scratch_controls.add_node(tree, _control_values(params))
+        live = {s.prop: controls.outputs[s.inputs[0]] for s in scratch_controls.CONTROLS}
+    surfaces = {"svm": _build_svm(tree, material, params, svm_lobes, base, cost_off=cost_off, controls=live),
+                "osl": None, "eevee": None}
     if params.layers is not None and params.layers.n_layers > EEVEE_MAX_LAYERS:
         preview = dataclasses.replace(params, layers=scratch_layers.merged_layers(params.layers, EEVEE_MAX_LAYERS))
+        preview_live = dict(live, density=_merged_density(tree, live["density"], params.layers)) if live else {}
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
-                                       f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600))
+                                       f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600),
+                                       controls=preview_live, twin="eevee")
     if src is not None:
         # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
         # and density) share it
-        script = osl_compile.script_node_from_source(tree, f"scratch_svbrdf.{hashlib.sha1(src.encode()).hexdigest()[:12]}.osl",
-                                                     src)
+        script = osl_compile.script_node_from_source(tree, shader_text_name(src), src)
+        _remember_bytecode(src, script)
+        script.name = SCRIPT_NODE_NAME
         script.location = (200, 300)
         uv = tree.nodes.new("ShaderNodeUVMap")
         uv.location = (-200, 400)
@@ -178,23 +201,57 @@ def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes
         if "UV" in script.inputs:
             tree.links.new(uv.outputs["UV"], script.inputs["UV"])
         tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
-        tint = script.inputs["Tint"]
-        tint.default_value = (*params.tint, 1.0) if len(tint.default_value) == 4 else params.tint
+        values = _control_values(params)
+        for sock in scratch_controls.CONTROLS:  # one socket drives the OSL input and the twins' math
+            if sock.osl and sock.osl in script.inputs and sock.prop in values:
+                scratch_controls.set_value(script.inputs[sock.osl], values[sock.prop])
+                if live:
+                    tree.links.new(live[sock.prop], script.inputs[sock.osl])
         if base is not None and "Base" in script.inputs:
             tree.links.new(base.outputs[0], script.inputs["Base"])
         surfaces["osl"] = script.outputs["BSDF"]
     return _finish(material, tree, out, surfaces, params, lobe_data, step)
 
 
+def _control_values(params: ScratchParams) -> dict:
+    """Values of the "Scratch Controls" inputs (``node_groups.scratch_controls.CONTROLS``) for ``params``."""
+    lp = params.layers
+    values = {"tint": tuple(params.tint)}
+    if lp is not None:
+        values.update(length=lp.length, width=lp.width, density=lp.density)
+    return values
+
+
+def _merged_density(tree, density, layers):
+    """``density`` mapped to the EEVEE preview's merged-layer density (``merged_layers``: the same scratched
+    fraction in ``EEVEE_MAX_LAYERS`` layers) by a Float Curve sampled from that function, so the preview
+    follows the live, animatable density too (curve error < 0.01 in d)."""
+    node = tree.nodes.new("ShaderNodeFloatCurve")
+    node.label = f"Density for {EEVEE_MAX_LAYERS} merged layers"
+    node.location = (-500, 500)
+    curve = node.mapping.curves[0]
+    xs = np.linspace(0.0, 1.0, 21)
+    ys = [scratch_layers.merged_layers(dataclasses.replace(layers, density=float(x)), EEVEE_MAX_LAYERS).density
+          for x in xs]
+    pts = curve.points
+    pts[0].location, pts[-1].location = (0.0, ys[0]), (1.0, ys[-1])
+    for x, y in zip(xs[1:-1], ys[1:-1]):
+        pts.new(float(x), float(y))
+    node.mapping.clip_min_y, node.mapping.clip_max_y = 0.0, 1.0
+    node.mapping.update()
+    tree.links.new(density, node.inputs["Value"])
+    return node.outputs["Value"]
+
+
 def _build_svm(tree, material, params: ScratchParams, lobe_data, base, label="SVM path (Cycles SVM / GPU, EEVEE)",
-               offset=(-1400, -600), cost_off: int = 0) -> bpy.types.NodeSocket:
+               offset=(-1400, -600), cost_off: int = 0, controls=None, twin="svm") -> bpy.types.NodeSocket:
     """A node-group (SVM) path, framed: see ``node_groups/scratch_svm.py`` for how it differs from OSL."""
     layers = params.layers
     theta_k, xi_k = scratch_layers.layer_transforms(layers) if layers is not None else (None, None)
     before = set(tree.nodes)
     surface = scratch_svm.build(tree, lobe_data, layers, theta_k, xi_k, tint=params.tint,
                                 base_socket=None if base is None else base.outputs[0], name=material.name,
-                                cost_off=cost_off)
+                                cost_off=cost_off, controls=controls, twin=twin)
     frame = tree.nodes.new("NodeFrame")
     frame.label = label
     for node in set(tree.nodes) - before - {frame}:
@@ -207,6 +264,7 @@ def _finish(material, tree, out, surfaces: dict, params: ScratchParams, lobe_dat
     """Diffuse term, output links (render paths), material flags and the stored parameters."""
     if params.diffuse is not None:  # a Lambertian term common to scratches and base (Fig. 12c, d)
         diff = tree.nodes.new("ShaderNodeBsdfDiffuse")
+        diff.name = diff.label = scratch_controls.DIFFUSE_NODE_NAME
         diff.location = (400, -300)
         if params.diffuse == "wood":
             _wood_texture(tree, diff.inputs["Color"])
@@ -224,14 +282,203 @@ def _finish(material, tree, out, surfaces: dict, params: ScratchParams, lobe_dat
                     for (k, s), y in zip(surfaces.items(), (-150, 150, -450))}
     render_paths.link_surface(tree, surfaces["svm"], surfaces["osl"], out, eevee_socket=surfaces["eevee"])
     material.cycles.use_bump_map_correction = False  # it rotates tilted lobe normals back toward Ng
+    _store_params(material, params, lobe_data)
+    step(1.0)
+    return material
+
+
+def _store_params(material, params: ScratchParams, lobe_data) -> None:
+    """The material's record of what it was built from (custom properties)."""
     material["scratch_addon_kind"] = "scratch_svbrdf"
     if lobe_data is not None:
         material["scratch_addon_fit_error"] = fit_error(lobe_data)
+    material[TABLE_KEY], material[STRUCTURE_KEY] = live_keys(params, material.name)
     material["scratch_addon_params"] = json.dumps({
         "profile": params.profile.cache_key(), "fresnel": None if params.fresnel is None else params.fresnel.cache_key(),
         "layers": None if params.layers is None else params.layers.cache_key(), "lobes": params.lobes,
         "base": {k: list(v) if isinstance(v, tuple) else v for k, v in params.base.items()}, "mode": params.mode,
         "resolution": params.resolution, "slices": params.slices, "tint": list(params.tint),
         "diffuse": params.diffuse, "backend": params.backend, "lobe_shape": params.lobe_shape}, default=_jsonable)
-    step(1.0)
+
+
+# --- live updates (scratch_addon.live) ----------------------------------------------------------------
+#: Material custom properties: what the tables / the node-tree structure were built from.
+TABLE_KEY = "scratch_live_table_key"
+STRUCTURE_KEY = "scratch_live_structure_key"
+
+
+def live_keys(params: ScratchParams, name: str) -> tuple[str, str]:
+    """(table key, structure key) of ``params``: the table key changes with every setting that is not a live
+    socket (``node_groups.scratch_controls.SOCKETS``), the structure key only with those that change the node
+    graph (a change of the table key alone is applied in place by ``apply_tables``)."""
+    base = {k: v for k, v in params.base.items() if k not in ("color", "roughness")}
+    f = params.fresnel
+    lp = params.layers
+    layers = None if lp is None else [lp.n_layers, float(lp.theta_deg), int(lp.seed)]
+    diffuse = None if params.diffuse is None else ("wood" if params.diffuse == "wood" else "color")
+    common = dict(layers=layers, base=base, mode=params.mode, resolution=params.resolution, slices=params.slices,
+                  diffuse=diffuse, backend=params.backend, lobe_shape=params.lobe_shape)
+    table = json.dumps(dict(common, profile=params.profile.cache_key(), lobes=params.lobes,
+                            fresnel=None if f is None else f.cache_key()), sort_keys=True, default=_jsonable)
+    kind = None if f is None else ("conductor" if hasattr(f, "k") else "dielectric")
+    in_place = params.mode == "lobes" and params.lobe_shape == "table"
+    if in_place and lp is not None:
+        common["layers"] = [lp.n_layers]   # rotations / offsets: constants rewritten in place (set_layer_constants)
+    structure = json.dumps(dict(common, fresnel=kind, name=name, lobes=None if in_place else params.lobes,
+                                profile=None if in_place else params.profile.cache_key()),
+                           sort_keys=True, default=_jsonable)
+    return table, structure
+
+
+SCRIPT_NODE_NAME = "Scratch Shader"
+#: compiled OSL bytecode by source hash (a table edit undone or dragged back compiles no second time)
+_BYTECODE: dict = {}
+
+
+def _source_key(src: str) -> str:
+    import hashlib
+
+    return hashlib.sha1(src.encode()).hexdigest()
+
+
+def _remember_bytecode(src: str, node) -> None:
+    if len(_BYTECODE) > 64:
+        _BYTECODE.pop(next(iter(_BYTECODE)))
+    _BYTECODE[_source_key(src)] = (node.bytecode, node.bytecode_hash)
+
+
+def shader_text_name(src: str) -> str:
+    """Name of the Text holding ``src``: by content hash, so materials with the same shader share one Text."""
+    return f"scratch_svbrdf.{hashlib.sha1(src.encode()).hexdigest()[:12]}.osl"
+
+
+def _set_source(node, src: str) -> None:
+    """Point the INTERNAL script of ``node`` at the (shared) Text of ``src`` and compile it (bytecode reused for
+    a source seen before); a Text other materials use is never rewritten.  On a compile error the node keeps
+    its text and bytecode."""
+    key = _source_key(src)
+    old = (node.script, node.bytecode, node.bytecode_hash)
+    name = shader_text_name(src)
+    text = bpy.data.texts.get(name)
+    created = text is None
+    if created:
+        text = bpy.data.texts.new(name)
+        text.write(src)
+    node.script = text
+    hit = _BYTECODE.get(key)
+    if hit is not None:
+        node.bytecode, node.bytecode_hash = hit
+        return
+    try:
+        osl_compile.compile_script_node(node)
+    except BaseException:
+        node.script = old[0]
+        node.bytecode, node.bytecode_hash = old[1], old[2]
+        if created:
+            bpy.data.texts.remove(text)
+        raise
+    _remember_bytecode(src, node)
+
+
+class NeedsRebuild(Exception):
+    """``apply_tables`` cannot update this material in place (its node tree has another structure)."""
+
+
+def scratch_script(material):
+    """The scratch shader's script node in ``material`` or None."""
+    def ours(n):
+        return (n is not None and n.bl_idname == "ShaderNodeScript" and n.script is not None
+                and n.script.name.startswith("scratch_svbrdf."))
+    node = material.node_tree.nodes.get(SCRIPT_NODE_NAME)
+    if ours(node):
+        return node
+    return next((n for n in material.node_tree.nodes if ours(n)), None)
+
+
+def prepare(params: ScratchParams) -> dict:
+    """Everything ``build`` / ``apply_tables`` compute before touching a material (no bpy datablocks: runs in a
+    worker thread): the tables (cached) and the OSL source."""
+    tab = tables(params)
+    src = None
+    if params.backend != "svm":
+        lp = params.layers
+        lobes = tab["lobes"]
+        ident = [np.ascontiguousarray(lobes[k]).tobytes() for k in ("cdf", "w_m", "w_0") if lobes.get(k) is not None] \
+            if isinstance(lobes, dict) and "cdf" in lobes else None
+        import hashlib
+
+        key = None if ident is None else (live_keys(params, "")[0], None if lp is None else (lp.length, lp.width,
+                                          lp.density), hashlib.sha1(b"".join(ident)).hexdigest())
+        src = _SOURCES.get(key) if key is not None else None
+        if src is None:
+            src = shader_source(params, tab["brdf"], tab["lobes"])
+            if key is not None:   # the same tables (a cache miss gives float64, a hit float32: other text)
+                if len(_SOURCES) > 32:
+                    _SOURCES.pop(next(iter(_SOURCES)))
+                _SOURCES[key] = src
+    return dict(tab, src=src)
+
+
+#: generated OSL sources by settings (a value dragged back generates no second time)
+_SOURCES: dict = {}
+
+
+def apply_tables(material, params: ScratchParams, prepared: dict | None = None) -> bpy.types.Material:
+    """Update ``material`` in place to ``params`` whose node-graph structure equals the built one
+    (``live_keys``): new tables into its table images, the new OSL source compiled into its script node,
+    the table lobe's roughness and the base closure's Fresnel inputs; no node is created.  Raises
+    ``NeedsRebuild`` (material untouched) when the structure differs; any failure leaves it as it was."""
+    if material.get(STRUCTURE_KEY) != live_keys(params, material.name)[1]:
+        raise NeedsRebuild("the node-graph structure changes")
+    prepared = prepared or prepare(params)
+    svm_lobes = prepared["svm_lobes"]
+    if "cdf" not in svm_lobes:
+        raise NeedsRebuild("fitted lobes")
+    tree = material.node_tree
+    script = scratch_script(material)
+    if (prepared["src"] is None) != (script is None):
+        raise NeedsRebuild("the OSL script node is missing")
+    table_nodes = [n for n in tree.nodes if n.bl_idname == "ShaderNodeTexImage" and n.image is not None
+                   and n.image.name.startswith(scratch_svm.TABLE_IMAGE_PREFIX)]
+    if not table_nodes:
+        raise NeedsRebuild("no table images")
+    with transaction.rebuild(material, replace=False):
+        base_old = tree.nodes.get(scratch_controls.BASE_NODE_NAME)
+        base_new = _base_node_unnamed(tree, params)
+        try:
+            if (base_old is None) != (base_new is None) or (base_new is not None and
+                                                            base_new.bl_idname != base_old.bl_idname):
+                raise NeedsRebuild("the base closure changes type")
+            if base_new is not None:
+                live = ("Color", "Base Color", "Roughness") if params.base["type"] != "mirror" else ()
+                for new_in, old_in in zip(base_new.inputs, base_old.inputs):
+                    if hasattr(new_in, "default_value") and new_in.name not in live:
+                        old_in.default_value = new_in.default_value   # a base's colour, roughness: live sockets
+        finally:
+            if base_new is not None:
+                tree.nodes.remove(base_new)
+        if script is not None:
+            _set_source(script, prepared["src"])
+        # new (content-hashed, shared) images; the nodes are repointed, no image another material uses is rewritten
+        new = {img.name.rsplit(" ", 1)[0]: img for img in scratch_svm.table_images(material.name, svm_lobes).values()}
+        for node in table_nodes:
+            img = new.get(node.image.name.rsplit(" ", 1)[0])
+            if img is None or tuple(img.size) != tuple(node.image.size):
+                raise NeedsRebuild("the table images change size")
+        for node in table_nodes:
+            node.image = new[node.image.name.rsplit(" ", 1)[0]]
+        ax = float(svm_lobes["alpha_x"])
+        rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
+        for node in tree.nodes:
+            if node.get(scratch_svm.TABLE_GLOSSY):
+                node.inputs["Roughness"].default_value = float(rough)
+                node.inputs["Anisotropy"].default_value = float(aniso)
+        lp = params.layers
+        if lp is not None:
+            theta_k, xi_k = scratch_layers.layer_transforms(lp)
+            scratch_svm.set_layer_constants(tree, theta_k, xi_k, "svm")
+            if lp.n_layers > EEVEE_MAX_LAYERS:
+                merged = scratch_layers.merged_layers(lp, EEVEE_MAX_LAYERS)
+                scratch_svm.set_layer_constants(tree, *scratch_layers.layer_transforms(merged), "eevee")
+        _store_params(material, params, prepared["lobes"])
     return material

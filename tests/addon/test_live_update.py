@@ -1,0 +1,300 @@
+"""Live look-dev (issue 18): panel settings update the material as they change, without an operator.
+
+Oracles: socket edits change exactly one socket (and the OSL input it mirrors) and nothing else (same
+nodes, same script text, same table images); table edits give the same shader text and table images as a
+fresh build of the same settings, with the same nodes (in place); structure edits rebuild; a bad setting
+leaves the material as it was; a drag (many values, UI mode) applies once, with the last value; a keyframed
+density renders differently on two frames.
+"""
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+RES = 64   # small tables keep the module fast (a cache miss at 64 is ~0.1 s)
+
+
+def _image_hash(img) -> str:
+    px = np.empty(len(img.pixels), np.float32)
+    img.pixels.foreach_get(px)
+    return hashlib.sha1(px.tobytes()).hexdigest()
+
+
+def _snapshot(mat) -> dict:
+    """What a rebuild or a table update would change."""
+    tree = mat.node_tree
+    script = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeScript")
+    return {"nodes": sorted(n.as_pointer() for n in tree.nodes), "links": len(tree.links),
+            "text": hashlib.sha1(script.script.as_string().encode()).hexdigest(), "bytecode": script.bytecode_hash,
+            "C": _tables_hash(tree, ("N", "A", "C")), "B": _tables_hash(tree, ("Y", "Btheta"))}
+
+
+def _tables_hash(tree, roles) -> str:
+    """Content of the table images (by role: node_groups.scratch_svm.table_images) the tree's nodes read."""
+    prefix = "Scratch table "
+    imgs = {n.image.name.rsplit(" ", 1)[0][len(prefix):]: n.image for n in tree.nodes
+            if n.bl_idname == "ShaderNodeTexImage" and n.image is not None and n.image.name.startswith(prefix)}
+    assert imgs, "no table images in the tree"
+    return hashlib.sha1("".join(f"{r}:{_image_hash(imgs[r])};" for r in sorted(roles) if r in imgs).encode()).hexdigest()
+
+
+def _inputs(node) -> dict:
+    return {s.identifier: (tuple(s.default_value) if hasattr(s.default_value, "__len__") else s.default_value)
+            for s in node.inputs if hasattr(s, "default_value")}
+
+
+@pytest.fixture
+def mat(addon, scene):
+    m = addon.api.make_scratched_material("demo", resolution=RES)
+    assert addon.live.is_live(m)
+    return m
+
+
+def _script(mat):
+    return next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript")
+
+
+SOCKET_EDITS = [("length", 0.05, "Length"), ("width", 3e-4, "Width"), ("density", 0.25, "Density"),
+                ("tint", (0.9, 0.5, 0.2), "Tint")]
+
+
+@pytest.mark.parametrize("prop, value, socket", SOCKET_EDITS)
+def test_socket_setting_writes_its_socket_only(addon, mat, prop, value, socket):
+    tree = mat.node_tree
+    controls = tree.nodes["Scratch Controls"]
+    before = _snapshot(mat)
+    others = {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.bl_idname != "ShaderNodeScript"}
+    key = mat["scratch_live_table_key"]
+    setattr(mat.scratch, prop, value)
+    got = controls.inputs[socket].default_value
+    want = np.atleast_1d(value)
+    assert np.allclose(np.atleast_1d(got)[:want.size], want, rtol=1e-6)
+    # the OSL input takes the value through a link from the controls node (and mirrors it)
+    script = _script(mat)
+    assert script.inputs[socket].is_linked and script.inputs[socket].links[0].from_node == controls
+    assert np.allclose(np.atleast_1d(script.inputs[socket].default_value)[:want.size], want, rtol=1e-6)
+    # ... and so does the SVM twin: some of its nodes read the controls output
+    assert any(lk.from_node == controls and lk.to_node.bl_idname != "ShaderNodeScript"
+               for lk in controls.outputs[socket].links)
+    assert _snapshot(mat) == before, "a socket edit must not rebuild, recompile or touch the tables"
+    assert {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.bl_idname != "ShaderNodeScript"} == others
+    assert mat["scratch_live_table_key"] == key
+
+
+def test_base_and_diffuse_colour_are_sockets(addon, mat):
+    mat.scratch.base_type = "glossy"          # structure: rebuilt
+    mat.scratch.diffuse_type = "color"
+    tree = mat.node_tree
+    before = _snapshot(mat)
+    mat.scratch.base_color = (0.2, 0.4, 0.6)
+    mat.scratch.base_roughness = 0.45
+    mat.scratch.diffuse_color = (0.7, 0.1, 0.3)
+    assert np.allclose(tree.nodes["Scratch Base"].inputs["Color"].default_value[:3], (0.2, 0.4, 0.6), atol=1e-6)
+    assert tree.nodes["Scratch Base"].inputs["Roughness"].default_value == pytest.approx(0.45)
+    assert np.allclose(tree.nodes["Scratch Diffuse"].inputs["Color"].default_value[:3], (0.7, 0.1, 0.3), atol=1e-6)
+    assert _snapshot(mat) == before
+
+
+def test_table_setting_updates_like_a_fresh_build(addon, mat):
+    """A table setting gives what a fresh build gives.  In place (same nodes) when the tables keep their
+    shape; the adaptive view slices (precompute.scratch.slices) and the θo basis size follow the profile and
+    the metal, so a profile or metal change usually changes the shape and rebuilds."""
+    import bpy
+
+    before = _snapshot(mat)
+    mat.scratch.profile_value = 0.3
+    mat.scratch.metal = "gold"
+    after = _snapshot(mat)
+    assert after["text"] != before["text"] and after["C"] != before["C"]
+    assert addon.live.last_update()["kind"] in ("tables", "rebuild")
+    # the oracle: a material built from scratch with the same settings
+    fresh = bpy.data.materials.new("fresh")
+    addon.api.make_scratched_material(material=fresh, **mat.scratch.to_params())
+    want = _snapshot(fresh)
+    assert after["text"] == want["text"] and after["C"] == want["C"] and after["B"] == want["B"]
+    base, base_fresh = mat.node_tree.nodes["Scratch Base"], fresh.node_tree.nodes["Scratch Base"]
+    assert _inputs(base) == _inputs(base_fresh)
+    glossy = [n for n in mat.node_tree.nodes if n.get("scratch_table_glossy")]
+    glossy_fresh = [n for n in fresh.node_tree.nodes if n.get("scratch_table_glossy")]
+    assert glossy and [_inputs(n) for n in glossy] == [_inputs(n) for n in glossy_fresh]
+
+
+def test_structure_setting_rebuilds(addon, mat):
+    mat.scratch.n_layers = 3
+    tree = mat.node_tree
+    assert addon.live.last_update()["kind"] == "rebuild"
+    assert sum(n.bl_idname == "ShaderNodeTexVoronoi" for n in tree.nodes) == 3
+    assert "#define NL 3" in _script(mat).script.as_string() or "NL 3" in _script(mat).script.as_string()
+    assert tree.nodes["Scratch Controls"].inputs["Density"].default_value == pytest.approx(mat.scratch.density)
+
+
+def test_bad_setting_leaves_material_as_it_was(addon, mat):
+    before = _snapshot(mat)
+    mat.scratch.profile_type = "file"   # no file chosen: ValueError inside the update
+    assert "profile file" in mat.get("scratch_live_error", "")
+    assert _snapshot(mat) == before
+    mat.scratch.profile_type = "quartic"
+    assert "scratch_live_error" not in mat
+
+
+def test_batch_applies_once(addon, mat, monkeypatch):
+    sm = addon.scratch_material
+    calls = []
+    real = sm.apply_tables
+    monkeypatch.setattr(sm, "apply_tables", lambda *a, **k: calls.append(1) or real(*a, **k))
+    with addon.live.batch():
+        for v in (0.1, 0.15, 0.2, 0.25):
+            mat.scratch.profile_value = v
+        mat.scratch.metal = "copper"
+    assert len(calls) == 1
+    assert '"quartic"' in mat["scratch_live_table_key"] and "0.25" in mat["scratch_live_table_key"]
+
+
+def test_drag_in_the_ui_queues_one_update_with_the_last_value(addon, mat, monkeypatch):
+    """UI mode (timers): a drag's intermediate values do not each rebuild; flush applies the last one."""
+    live = addon.live
+    monkeypatch.setattr(live, "_background", lambda: False)
+    monkeypatch.setattr(live.bpy.app.timers, "register", lambda *a, **k: None)
+    monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
+    prepared = []
+    real = addon.scratch_material.prepare
+    monkeypatch.setattr(addon.scratch_material, "prepare", lambda spec: prepared.append(spec) or real(spec))
+    before = _snapshot(mat)
+    for v in np.linspace(0.1, 0.4, 12):
+        mat.scratch.profile_value = float(v)
+        mat.scratch.density = float(v)      # sockets still follow at once
+        assert mat.node_tree.nodes["Scratch Controls"].inputs["Density"].default_value == pytest.approx(v)
+    assert _snapshot(mat) == before and live.pending()
+    live.flush()
+    assert not live.pending()
+    sm = addon.scratch_material
+    last = sm.live_keys(sm.validate(**mat.scratch.to_params()), mat.name)[0]
+    assert mat.scratch.profile_value == pytest.approx(0.4)
+    assert len(prepared) == 1 and sm.live_keys(prepared[0], mat.name)[0] == last == mat["scratch_live_table_key"]
+    assert _snapshot(mat)["text"] != before["text"]
+
+
+def test_undo_handler_resyncs_a_stale_material(addon, mat):
+    """Memfile undo restores settings and tree together; a step taken while an update was pending leaves them
+    out of step: the undo handler brings the tables back to the settings."""
+    live = addon.live
+    before = _snapshot(mat)
+    with live.suspended():
+        mat.scratch.profile_value = 0.35
+    assert _snapshot(mat) == before
+    live._on_undo()
+    assert _snapshot(mat)["text"] != before["text"]
+    assert mat["scratch_live_settings_key"] == mat["scratch_live_table_key"]
+
+
+def test_keyframed_density_renders_differently_on_two_frames(addon, scene, tmp_path):
+    import bpy
+
+    render = addon.render
+    scene = render.reset_scene()
+    m = addon.api.make_scratched_material("demo", resolution=RES)
+    render.studio_world(scene)
+    render.add_torus(scene, material=m)
+    render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
+    m.scratch.base_type = "none"    # black between scratches: the density sets the brightness
+    m.scratch.density = 0.02
+    m.scratch.keyframe_insert("density", frame=1)
+    m.scratch.density = 1.0
+    m.scratch.keyframe_insert("density", frame=2)
+    render.configure_cycles(scene, samples=4, res=(32, 24), seed=0, osl=False)
+    means = []
+    for frame in (1, 2):
+        scene.frame_set(frame)
+        want = 0.02 if frame == 1 else 1.0
+        assert m.node_tree.nodes["Scratch Controls"].inputs["Density"].default_value == pytest.approx(want, abs=1e-6)
+        out = tmp_path / f"f{frame}.exr"
+        render.render_to_file(scene, str(out))
+        img = bpy.data.images.load(str(out))
+        px = np.empty(len(img.pixels), np.float32)
+        img.pixels.foreach_get(px)
+        means.append(px.reshape(-1, 4)[:, :3].mean())
+        bpy.data.images.remove(img)
+    assert means[1] > 1.5 * means[0], means
+
+
+def _layer_constants(mat) -> dict:
+    """The per-layer constants (eq. 7's Θ_k, ξ_k) of the nodes ``scratch_svm.build`` tags, by tag."""
+    def values(node):
+        out = []
+        for s in node.inputs:
+            if not s.is_linked and hasattr(s, "default_value"):
+                v = s.default_value
+                out.extend(round(float(x), 6) for x in (v if hasattr(v, "__len__") else (v,)))
+        return tuple(out)
+    return {n["scratch_layer_const"]: values(n) for n in mat.node_tree.nodes if n.get("scratch_layer_const")}
+
+
+def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, mat):
+    import bpy
+
+    before = _snapshot(mat)
+    consts = _layer_constants(mat)
+    n = mat.scratch.n_layers
+    tags = {t for key in consts for t in key.split(";") if t.startswith("svm/")}
+    # per layer: its Mapping (Θ, and ξ when the size is constant), its ξ offset (live size) and its Θ in the pick
+    assert {t.split("/")[1] for t in tags} == {"map", "xi", "theta2", "theta3"}
+    assert len(tags) == 3 * n, (n, sorted(tags))
+    mat.scratch.seed = 7
+    mat.scratch.theta_deg = 40.0
+    assert addon.live.last_update()["kind"] == "tables"
+    after = _snapshot(mat)
+    assert after["nodes"] == before["nodes"] and after["text"] != before["text"]
+    fresh = bpy.data.materials.new("fresh")
+    addon.api.make_scratched_material(material=fresh, **mat.scratch.to_params())
+    assert _layer_constants(mat) == _layer_constants(fresh) != consts
+    want = _snapshot(fresh)
+    assert (after["text"], after["C"], after["B"]) == (want["text"], want["C"], want["B"])
+
+
+def test_iridescent_layer_drag_compiles_once_with_the_last_value(addon, scene, monkeypatch):
+    """Every iridescent-layer setting is compiled in (σ sizes the reach grid): a drag rebuilds once (UI)."""
+    import bpy
+
+    live, irid = addon.live, addon.iridescence_material
+    m = bpy.data.materials.new("irid")
+    node = m.node_tree.nodes.new("ShaderNodeScript")
+    node.name = irid.NODE_NAME                      # stands for an inserted layer: insert_layer is counted
+    calls = []
+    monkeypatch.setattr(irid, "insert_layer", lambda mat, scratches, **kw: calls.append(kw))
+    monkeypatch.setattr(live, "_background", lambda: False)
+    monkeypatch.setattr(live.bpy.app.timers, "register", lambda *a, **k: None)
+    monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
+    for sigma in (20.0, 30.0, 40.0, 55.0):
+        m.scratch_iridescence.sigma_um = sigma
+    m.scratch_iridescence.samples = 3
+    assert calls == [] and live.pending()
+    live.flush()
+    assert len(calls) == 1 and calls[0]["sigma_um"] == pytest.approx(55.0) and calls[0]["samples"] == 3
+    monkeypatch.setattr(live, "_background", lambda: True)     # headless: at once
+    m.scratch_iridescence.sigma_um = 70.0
+    assert len(calls) == 2 and calls[1]["sigma_um"] == pytest.approx(70.0)
+
+
+def test_keyframed_settings_reach_the_sockets_before_the_frame_is_evaluated(addon, mat):
+    """An animation render syncs a frame right after ``frame_change_pre``: the sockets must hold that frame's
+    keyed values already there (evaluated from the F-curves), tint channels included."""
+    import bpy
+
+    live = addon.live
+    mat.scratch.density = 0.1
+    mat.scratch.keyframe_insert("density", frame=1)
+    mat.scratch.density = 0.9
+    mat.scratch.keyframe_insert("density", frame=11)
+    mat.scratch.tint = (1.0, 1.0, 1.0)
+    mat.scratch.keyframe_insert("tint", index=1, frame=1)
+    mat.scratch.tint = (1.0, 0.2, 1.0)
+    mat.scratch.keyframe_insert("tint", index=1, frame=11)
+    scene = bpy.context.scene
+    scene.frame_current = 6          # no evaluation: only the pre handler runs
+    live._on_frame_pre(scene)
+    controls = mat.node_tree.nodes["Scratch Controls"]
+    assert controls.inputs["Density"].default_value == pytest.approx(0.5, abs=0.05)   # eased: near the middle
+    assert 0.2 < controls.inputs["Tint"].default_value[1] < 1.0
+    assert controls.inputs["Tint"].default_value[0] == pytest.approx(1.0)
