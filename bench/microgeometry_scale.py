@@ -35,7 +35,7 @@ else:
     T = ndf.kirchhoff_ndf(h, 0.5, wavelength_um=0.555, patch_um=70.0, resolution=257)
 wall = time.perf_counter() - t0
 np.save({out!r}, np.asarray(T.table, np.float64))
-print(json.dumps(dict(wall=wall, maxrss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)))
+print(json.dumps(dict(wall=wall, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024))))
 """
 
 

@@ -47,7 +47,7 @@ t0 = time.perf_counter()
 b = simulate(prof, M, fr, max_exit_error=tol, max_seconds=float("inf"))
 wall = time.perf_counter() - t0
 np.save({out!r}, np.stack([b.rho_m[..., 0], b.rho0.sum(-1)]))
-print(json.dumps(dict(wall=wall, maxrss=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+print(json.dumps(dict(wall=wall, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
                       segments=int(b.meta["segments"]), source=int(prof.segments))))
 """
 

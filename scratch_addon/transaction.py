@@ -98,6 +98,11 @@ def _links(tree) -> set:
              lk.is_muted) for lk in tree.links}
 
 
+#: name prefixes of the datablocks builders share between materials by content hash
+#: (``scratch_material.shader_text_name``, ``node_groups.scratch_svm.table_images``)
+SHARED_PREFIXES = ("scratch_svbrdf.", "Scratch table ")
+
+
 def _owned(material, nodes) -> list:
     """Text and Image datablocks used by ``nodes`` and named after ``material`` (what a builder may
     look up by name and overwrite)."""
@@ -145,8 +150,13 @@ class _State:
         self.names = [n.name for n in self.nodes]
         self.node_state = [(_rna_props(n), _custom(n), _sockets(n.inputs), _sockets(n.outputs),
                             [s.identifier for s in n.inputs], getattr(n, "is_active_output", None)) for n in self.nodes]
-        self.scripts = {n.as_pointer(): (n.script.as_string(), n.bytecode, n.bytecode_hash)
+        self.scripts = {n.as_pointer(): (n.script.as_string(), n.bytecode, n.bytecode_hash, n.script)
                         for n in self.nodes if n.bl_idname == "ShaderNodeScript" and n.script is not None}
+        # shared, content-hashed datablocks the nodes use now (dropped at commit when nothing uses them any more)
+        self.shared = [db for n in self.nodes for db in (getattr(n, "script", None) if n.bl_idname == "ShaderNodeScript"
+                                                          else getattr(n, "image", None) if n.bl_idname == "ShaderNodeTexImage"
+                                                          else None,)
+                       if db is not None and db.name.startswith(SHARED_PREFIXES)]
         self.links = _links(self.tree)
         self.owned = [(db, db.name) for db in _owned(material, self.nodes)] if replace else []
         self.data = _datablocks()
@@ -161,6 +171,9 @@ class _State:
         if self.replace:
             for node in self.nodes:
                 self.tree.nodes.remove(node)
+        for db in dict.fromkeys(self.shared):   # a shader text / table image no material uses any more
+            if db.users <= int(db.use_fake_user):
+                self._collection(db).remove(db)
         for db, name in self.owned:
             taken = self._collection(db).get(name)
             if taken is not None and taken != db and db.users <= int(db.use_fake_user):
@@ -212,7 +225,9 @@ class _State:
 
     @staticmethod
     def _restore_script(node, saved, in_ids) -> None:
-        text, bytecode, bytecode_hash = saved
+        text, bytecode, bytecode_hash, datablock = saved
+        if node.script != datablock:   # repointed to another (shared) Text: point back, never rewrite a shared one
+            node.script = datablock
         if node.script is not None and node.script.as_string() != text:
             node.script.clear()
             node.script.write(text)
