@@ -30,7 +30,7 @@ def main(argv: list[str]) -> int:
     lam = lambda c: {"model": "lambert", "albedo": c}   # noqa: E731
     ct = {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.3, "F0": 1.0, "ks": 0.8}
     cases = [("pyramid h0.5, 2 Lambert", pyramid_tile(height=0.5), [lam(0.5), lam((0.8, 0.6, 0.4))]),
-             ("groove d0.4, Lambert + GGX a0.3", groove_tile(depth=0.4), [lam(0.6), ct])]
+             ("groove d0.4, Lambert + GGX a0.3", groove_tile(depth=0.4), [lam(0.6), ct, lam(0.3)])]
     rng = np.random.default_rng(1)
     wi = np.array([-1.5, 1.0, 2.5]) + rng.uniform(-0.75, 0.75, (40, 3)) * [1, 1, 0]
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)

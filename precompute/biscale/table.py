@@ -41,6 +41,8 @@ MAX_SHADER_DIR_RES = int((MAX_FLOATS / 3) ** 0.25)
 #: ~ cell²: pyramid tile, 35° view, lamp direction: -4.1 % at the bake's 10, -1.9 % at 16, -1.1 % at 19
 #: against the ray-traced tile, measured).
 CLOSURE_RES = MAX_SHADER_DIR_RES
+#: Facets per block of the visibility products (memory: _CHUNK x res² floats).
+_CHUNK = 32768
 #: Most distinct facet normals summed exactly; beyond it the normals are splatted onto the bake's grid.
 MAX_EXACT_NORMALS = 512
 
@@ -125,11 +127,12 @@ def tabulate_tile(tile, materials, res: int | None = None) -> TabulatedBRDF:
     _, fn = face_geometry(tile.tile.vertices, tile.tile.faces)
     V = visibility_matrix(tri, tile.tile.period, tile.pos, dirs, point_normals=fn[tile.face],
                           closed=is_closed_surface(tile.tile))                       # (S, D) bool
-    cos_s = np.clip(tile.n @ dirs.T, 0.0, None)
-    a_v = (V * cos_s * tile.dA[:, None]).sum(0)                                       # eq. 10
+    a_v = np.zeros(D)
+    for a in range(0, len(V), _CHUNK):                          # eq. 10, in facet chunks (bounded memory)
+        b = a + _CHUNK
+        a_v += (V[a:b] * np.clip(tile.n[a:b] @ dirs.T, 0.0, None) * tile.dA[a:b, None]).sum(0)
     normals, nidx, nwt = _normal_groups(tile)
     lobes = [material_lobes(m) for m in materials]
-    Vf = V.astype(np.float32)
     num = np.zeros((D, D, 3))
     for m, beta, w in tile._groups():                           # (material, colour) groups, §3.7
         for j in np.unique(nidx[w > 0]):
@@ -137,8 +140,10 @@ def tabulate_tile(tile, materials, res: int | None = None) -> TabulatedBRDF:
             sel = np.flatnonzero(ws > 0)
             if sel.size == 0:
                 continue
-            Vs = Vf[sel]
-            W = (Vs * ws[sel, None].astype(np.float32)).T @ Vs   # Σ_s ws V_s(ωi) V_s(ωo), (D, D)
+            W = np.zeros((D, D), np.float32)                   # Σ_s ws V_s(ωi) V_s(ωo)
+            for a in range(0, sel.size, _CHUNK):
+                Vs = V[sel[a:a + _CHUNK]].astype(np.float32)
+                W += (Vs * ws[sel[a:a + _CHUNK], None].astype(np.float32)).T @ Vs
             nj = normals[j]
             c = np.clip(dirs @ nj, 0.0, None)
             f = eval_material(lobes[m], nj, dirs[:, None, :], dirs[None, :, :])   # (D, D, 3)
