@@ -1,8 +1,8 @@
 """``python -m bench biscale_closure_table``: bake time with and without the closure's finer table
 (``precompute.biscale.table.tabulate_tile``) and its accuracy between the bake's directions.
 
-Per tile, in one run: the bake (facets, visibility, BVNDF, M from the disk cache off, eq. 12) at
-``dir_res`` 10, then ``tabulate_tile`` at ``closure_res``; repeated (A = bake, B = tabulation,
+Per tile, in one run: the bake (facets, visibility, BVNDF, M (disk cache off; the in-memory memo
+serves the repeats), eq. 12) at ``dir_res`` 10, then ``tabulate_tile`` at ``closure_res``; repeated (A = bake, B = tabulation,
 interleaved), medians.  Accuracy: mean f over 40 light directions spread over the 1.5 m area lamp of
 the render test (-1.5, 1, 2.5) at views 0° and 35°, coarse table (``EffectiveBRDF.eval``) and fine table
 vs the Monte Carlo ray-traced tile (``render_reference_fr``, 40k rays per view)."""
@@ -59,5 +59,6 @@ def main(argv: list[str]) -> int:
            ["tile", "facets", "bake dir_res 10 (s)", "closure res", "tabulate (s)",
             "0° err coarse / fine (%)", "35° err coarse / fine (%)"], rows,
            f"medians of {a.repeats} interleaved runs; load average {load:.1f} on {os.cpu_count()} cores. "
+           "The bake's M comes from the in-memory memo after the first run. "
            "err: max over RGB of |mean f over the lamp's directions / ray-traced tile - 1|.")
     return 0
