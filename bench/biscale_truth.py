@@ -96,12 +96,15 @@ def main(argv: list[str]) -> int:
         res = btable.table_dir_res(mats)
         opts = dict(n_facets=2000 if args.quick else 10000, dir_res=res)
         t0 = time.perf_counter()
-        brdf = BiscaleTile(tile.vertices, tile.faces, tile.face_material, **opts).effective_brdf(mats)
+        bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, **opts)
+        brdf = bt.effective_brdf(mats)
+        table = btable.tabulate_tile(bt, mats)     # the closure's finer table, from the facets
         t_bake = time.perf_counter() - t0
         fit = fit_closures(brdf)
         for bounces in ([0, 8] if args.gi else [0]):
             for mode in args.modes.split(","):
-                mat = biscale_material.make_biscale_material(fit, name=f"{name} {mode}", mode=mode, brdf=brdf)
+                mat = biscale_material.make_biscale_material(fit, name=f"{name} {mode}", mode=mode, brdf=brdf,
+                                                           table=table if mode == "table" else None)
                 ex, bk, secs = render_pair(tile, mats, mat, [_view(*v) for v in views], n=n, spp=args.spp,
                                            bounces=bounces)
                 err = np.abs(bk - ex).max(1) / ex.mean(1)
@@ -130,7 +133,10 @@ def figure(spp: int = 64) -> int:
 
     factory, kw, mats = TILES["pyramid (diffuse)"]
     tile = getattr(geometry, factory)(**kw)
-    brdf = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10).effective_brdf(mats)
+    from scratch_materials.precompute.biscale import table as btable
+    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10)
+    brdf = bt.effective_brdf(mats)
+    table = btable.tabulate_tile(bt, mats)     # the closure's finer table, from the facets
     from scratch_materials.precompute.biscale.fit import fit_closures
     fit = fit_closures(brdf)
     tmp = tempfile.mkdtemp()
@@ -145,7 +151,7 @@ def figure(spp: int = 64) -> int:
             biscale_truth.explicit_tile_plane(scene, tile, mats, n=100, size=4.0)
         else:
             render.add_plane(scene, size=4.0, material=biscale_material.make_biscale_material(
-                fit, name=kind, mode=kind, brdf=brdf))
+                fit, name=kind, mode=kind, brdf=brdf, table=table if kind == "table" else None))
         render.add_camera(scene, location=tuple(5 * _view(35, 0)), target=(0, 0, 0), ortho_scale=1.2)
         render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=0)
         img, _ = render.render_array(scene, tmp, kind)

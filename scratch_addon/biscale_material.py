@@ -113,7 +113,7 @@ MODES = ("table", "fit", "reference")
 
 @checked
 def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = True, mode: str = "fit",
-                          brdf=None) -> bpy.types.Material:
+                          brdf=None, table=None) -> bpy.types.Material:
     """Cycles material of a bi-scale effective BRDF.
 
     ``mode="fit"``: the fitted closure mixture ``fit`` (``precompute.biscale.fit.ClosureFit``) as SVM
@@ -122,7 +122,9 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     importance-sampled by an INTERNAL OSL script node (``osl.biscale_reference``; no light sampling:
     validation renders) where Cycles runs OSL on the CPU, and the fitted closures ``fit`` (fitted
     here when None) everywhere else (Cycles SVM, GPU, EEVEE; see ``render_paths``).  Tangent node (UV map) and UV Map
-    node wired in as for the scratch reference shader."""
+    node wired in as for the scratch reference shader.
+    ``mode="table"``: the tabulated-BRDF closure of ``table`` (a ``TabulatedBRDF``, best the finer table made
+    from the facets by ``precompute.biscale.table.tabulate_tile``; default ``brdf`` itself on its grid)."""
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
     if mode in ("reference", "table") and brdf is None:
@@ -134,7 +136,7 @@ def make_biscale_material(fit=None, name: str = "Bi-scale", use_tilted: bool = T
     if mode == "table":   # the exact table as a closure; the fitted closures are its SVM / EEVEE twin
         with transaction.new_datablocks():
             mat = tabulated_material.make_tabulated_material(
-                biscale_table.to_tabulated(brdf), name, svm_twin=lambda tree: _fit_closures(tree, fit, use_tilted),
+                biscale_table.to_tabulated(brdf) if table is None else table, name, svm_twin=lambda tree: _fit_closures(tree, fit, use_tilted),
                 kind="biscale")
             mat["biscale_mode"], mat["biscale_fit_rel_l1"], mat["biscale_fit_psnr"] = mode, float(fit.rel_l1), float(fit.psnr)
         return mat
@@ -230,9 +232,10 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
         opts["dir_res"] = biscale_table.table_dir_res(materials)   # follows the sharpest small-scale material
     step(0.1)
     brdf, fit, info = bake_tables(V, F, M, P, materials, n_lobes=n_lobes, exr_dir=exr_dir,
-                                  progress=lambda f: step(0.1 + 0.8 * f), **opts)
+                                  progress=lambda f: step(0.1 + 0.8 * f), closure_table=mode == "table", **opts)
+    table = info.pop("table", None)     # the closure's finer table, tabulated from the facets
     with transaction.new_datablocks():
-        mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf)
+        mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf, table=table)
         mat["biscale_table"] = info["exr"] or ""
         if target is not None:
             if target.data.materials:

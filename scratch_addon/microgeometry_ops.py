@@ -27,6 +27,11 @@ from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, 
 
 # ----------------------------------------------------------------------------- material builders
 
+#: How the average material renders the measured NDF (operator enum items).
+NDF_MODELS = {"ELLIPSOID": ("Ellipsoid Fit", "One anisotropic Glossy lobe fitted to the NDF (§8); SVM, GPU, EEVEE"),
+              "TABLE": ("Table", "The measured NDF itself as a tabulated microfacet BRDF (Cycles OSL, light "
+                                 "sampling); the Glossy fit elsewhere")}
+
 
 def _finish_material(mat, kind: str) -> None:
     mat["scratch_addon_kind"] = kind
@@ -103,23 +108,39 @@ def make_texture_material(name: str, texture, color=(0.8, 0.8, 0.8), scale: floa
 def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavelength_um: float = 0.555,
                               ndf_kind: str = "FILTERED", synthesize: bool = False, texture_size: int = 256,
                               texel_um: float = 63.5, texture_scale: float = 1.0, seed: int = 0,
-                              color=(0.8, 0.8, 0.8), name: str | None = None, progress=None):
+                              color=(0.8, 0.8, 0.8), name: str | None = None, progress=None,
+                              ndf_model: str = "ELLIPSOID"):
     """Height field file -> Cycles material (average NDF, or synthesised texture if ``synthesize``).
 
-    Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}``.  A failure leaves no
-    new material or image behind.
+    ``ndf_model`` (average NDF only): ``"ELLIPSOID"`` the §8 ellipsoid fit as one Glossy lobe (SVM, GPU,
+    EEVEE), ``"TABLE"`` the measured NDF itself as a tabulated microfacet BRDF (issue 16:
+    ``tabulated_material.make_ndf_material``; OSL closure with light sampling, its Diffuse + Glossy fit
+    elsewhere).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
+    None for the table).  A failure leaves no new material or image behind.
     """
+    if ndf_model not in NDF_MODELS:
+        raise ValueError(f"ndf_model: expected one of {list(NDF_MODELS)}, got {ndf_model!r}")
+    if ndf_model == "TABLE" and synthesize:
+        raise ValueError("ndf_model: the measured-NDF table is the average material; the synthesised texture "
+                         "(synthesize) uses the ellipsoid fit per texel")
     if not isinstance(filepath, (str, os.PathLike)):
         raise ValueError(f"filepath: expected a path to a height-field file, got {type(filepath).__name__}")
     filepath = os.fspath(filepath)
     filepath = bpy.path.abspath(filepath) if filepath.startswith("//") else filepath
     tables = mg_tables.compute_tables(filepath, pixel_um, sigma_um, wavelength_um, ndf_kind, synthesize, texture_size,
-                                      texel_um, seed, progress)
+                                      texel_um, seed, progress, with_ndf=ndf_model == "TABLE")
     stem = os.path.splitext(os.path.basename(filepath))[0]
     with transaction.new_datablocks():
         if synthesize:
             mat, _, loss = make_texture_material(name or f"Microgeometry {stem} (texture)", tables["texture"], color,
                                                  texture_scale)
+        elif ndf_model == "TABLE":
+            from ..precompute.microgeometry.ndf import NDFTable
+            from .tabulated_material import make_ndf_material
+
+            rgb = materials.check_color("color", color)[:3]
+            mat, loss = make_ndf_material(NDFTable(tables["ndf"], kind=ndf_kind.lower()),
+                                          name or f"Microgeometry {stem} (NDF table)", F=rgb), None
         else:
             mat, _, loss = make_average_material(name or f"Microgeometry {stem} (average)", tables["ellipsoid"], color)
         mat["microgeometry_source"] = os.path.basename(filepath)
@@ -145,6 +166,9 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
     wavelength_um: bpy.props.FloatProperty(name="Lambda (µm)", default=0.555, min=0.05, max=100.0,
                                            description="Effective Kirchhoff wavelength lambda_q (eq. 5-6)")
     ndf_kind: bpy.props.EnumProperty(name="NDF", items=NDF_KINDS, default="FILTERED")
+    ndf_model: bpy.props.EnumProperty(name="NDF Model", default="ELLIPSOID",
+                                      items=[(k, a, b) for k, (a, b) in NDF_MODELS.items()],
+                                      description="Average material: the ellipsoid fit, or the measured NDF as a table")
     synthesize: bpy.props.BoolProperty(name="Synthesise Texture", default=False,
                                        description="Spatially varying ellipsoid NDF texture (§9) "
                                                    "instead of the average NDF")
@@ -168,6 +192,9 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
         col = self.layout.column()
         for prop in ("pixel_um", "ndf_kind", "sigma_um", "wavelength_um", "synthesize"):
             col.prop(self, prop)
+        row = col.row()
+        row.enabled = not self.synthesize
+        row.prop(self, "ndf_model", expand=True)
         sub = col.column()
         sub.enabled = self.synthesize
         for prop in ("texture_size", "texel_um", "texture_scale", "seed"):
@@ -179,13 +206,17 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
             with reported_warnings(self), progress(context) as update:
                 mat, info = material_from_heightfield(
                     self.filepath, self.pixel_um, self.sigma_um, self.wavelength_um, self.ndf_kind, self.synthesize,
-                    self.texture_size, self.texel_um, self.texture_scale, self.seed, progress=update)
+                    self.texture_size, self.texel_um, self.texture_scale, self.seed, progress=update,
+                    ndf_model="ELLIPSOID" if self.synthesize else self.ndf_model)
         except USER_ERRORS as exc:
             return report_error(self, exc)
         assign_material(obj, mat)
         loss = info["loss"]
-        self.report({"WARNING"} if not loss.lossless else {"INFO"},
-                    f"Assigned {mat.name}{' (cached tables)' if info['cached'] else ''}; {loss}")
+        cached = " (cached tables)" if info["cached"] else ""
+        if loss is None:
+            self.report({"INFO"}, f"Assigned {mat.name}{cached}; measured NDF as a table")
+        else:
+            self.report({"WARNING"} if not loss.lossless else {"INFO"}, f"Assigned {mat.name}{cached}; {loss}")
         return {"FINISHED"}
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 import warnings
 
 import numpy as np
@@ -19,6 +20,7 @@ from ..tables import cache, files
 from .brdfs import material_lobes
 from .effective import BiscaleTile, check_options
 from .fit import fit_closures
+from .table import tabulate_tile
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
 _TILE_CACHE: dict = {}
@@ -89,7 +91,8 @@ def check_inputs(materials, n_lobes: int = 4, **opts) -> dict:
     return check_options(opts, also_accepted=("n_lobes", "exr_dir", "progress", "color_weights"))
 
 
-def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None, **opts):
+def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None,
+                closure_table: bool = False, **opts):
     """Effective BRDF (eq. 8 via §3.4-3.7), its closure fit (``fit.fit_closures``) and the table saved as
     EXR in ``exr_dir`` (default: the cache folder's ``biscale``; checked before the bake, see ``table_dir``).
     ``materials``: small-scale BRDF dicts (``brdfs``), one per material index.  Returns ``(brdf, fit, info)``;
@@ -102,6 +105,12 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     tile, reused = get_tile(V, F, M, P, **opts)
     step(0.3)
     brdf = tile.effective_brdf(materials)
+    step(0.6)
+    table = None
+    if closure_table:
+        t0 = time.perf_counter()
+        table = tabulate_tile(tile, materials)
+        t_table = time.perf_counter() - t0
     step(0.7)
     fit = fit_closures(brdf, n_lobes=n_lobes)
     step(0.9)
@@ -111,4 +120,7 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     except OSError as exc:
         warnings.warn(f"bi-scale table not written ({files.one_line(exc)})", cache.CacheWarning, stacklevel=2)
         exr = None
-    return brdf, fit, {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}
+    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}
+    if table is not None:
+        info.update(table=table, seconds_table=t_table)
+    return brdf, fit, info

@@ -49,12 +49,14 @@ def _check_params(pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, tex
 
 def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavelength_um: float = 0.555,
                    ndf_kind: str = "FILTERED", synthesize: bool = False, texture_size: int = 256,
-                   texel_um: float = 63.5, seed: int = 0, progress=None) -> dict:
+                   texel_um: float = 63.5, seed: int = 0, progress=None, with_ndf: bool = False) -> dict:
     """Average ellipsoid parameters (and optionally a synthesised (S, S, 5) texture), cached.
 
     Units: micrometres (pixel size, sigma, wavelength, texel size).  Returns
     ``{"ellipsoid": (5,), "texture": (S, S, 5) (if synthesize), "cached": bool}``.  ``progress(f)``
     is called with fractions in [0, 1].  Raises ``ValueError`` with the parameter's name on bad input.
+    ``with_ndf``: also ``"ndf"``, the measured NDF table itself (``NDFTable.table``, (R, R) on the
+    orthographic disk, §5.1) for the tabulated material (``ndf_brdf``).
     """
     pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um = _check_params(
         pixel_um, sigma_um, wavelength_um, ndf_kind, texture_size, texel_um)
@@ -69,6 +71,8 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
               "wavelength_um": f32(wavelength_um) if ndf_kind == "KIRCHHOFF" else 0.0,
               "synthesize": bool(synthesize), "texture_size": texture_size if synthesize else 0,
               "texel_um": f32(texel_um) if synthesize else 0.0, "seed": int(seed) if synthesize else 0}
+    if with_ndf:
+        inputs["with_ndf"] = True     # only then: the ellipsoid-only entries stay valid
     state = {"cached": True}
 
     def compute():
@@ -83,6 +87,8 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
             ndf = mg.kirchhoff_ndf(hf, wavelength_um=wavelength_um, resolution=_NDF_RESOLUTION, normalize=True)
         report(0.4)
         out = {"ellipsoid": np.array(mg.fit_ellipsoid(ndf), dtype=np.float64)}
+        if with_ndf:
+            out["ndf"] = np.asarray(ndf.table, dtype=np.float64)
         report(0.5)
         if synthesize:
             strip_x, strip_y = _strips(hf, texel_um)
@@ -93,7 +99,9 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
 
     result = {k: np.array(v, dtype=np.float64) for k, v in
               cache.cached_arrays("microgeometry_material", version, inputs, compute).items()}
-    for v in result.values():  # float32 storage can round a clamped bound just outside the valid range
+    for k, v in result.items():  # float32 storage can round a clamped bound just outside the valid range
+        if k == "ndf":
+            continue
         v[..., :2] = np.clip(v[..., :2], ell.ALPHA_MIN, ell.ALPHA_MAX)
         v[..., 2:4] = np.clip(v[..., 2:4], -ell.THETA_XY_MAX, ell.THETA_XY_MAX)
     result["cached"] = state["cached"]
