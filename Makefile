@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(VPY) scratch_addon/cli.py --preset demo --layout highlights --out docs/img/demo.png --samples 16 --res 640 480
 
 test: $(STAMP)
-	$(VPY) -m pytest -q -p no:cacheprovider tests
+	$(VPY) -m pytest -q -p no:cacheprovider --durations=15 tests
 
 bench: $(STAMP)
 	$(VPY) -m bench --list
