@@ -183,18 +183,7 @@ def _fit_closures(tree, fit, use_tilted: bool):
 
 def _reference_script(mat, src):
     """The exact-table OSL script node (UV Map and Tangent wired in); returns its closure socket."""
-    tree = mat.node_tree
-    # before the node exists: assigning its script fires Cycles' update_script_node, which
-    # imports oslquery (a traceback in the log when OSL is on and oslquery not yet on sys.path)
-    osl_compile.ensure_oslquery()
-    script = osl_compile.script_node_from_source(tree, f"{mat.name}.biscale.osl", src)
-    script.location = (0, 300)
-    uv = tree.nodes.new("ShaderNodeUVMap")         # makes Cycles export the UV attributes
-    uv.location = (-400, 450)
-    tangent = tree.nodes.new("ShaderNodeTangent")
-    tangent.direction_type = "UV_MAP"
-    tangent.location = (-400, 250)
-    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    script = osl_compile.uv_script_node(mat.node_tree, f"{mat.name}.biscale.osl", src)
     return script.outputs["BSDF"]
 
 

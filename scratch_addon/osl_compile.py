@@ -109,3 +109,18 @@ def script_node_from_source(tree: bpy.types.NodeTree, name: str, source: str) ->
     node.script = text
     compile_script_node(node)
     return node
+
+
+def uv_script_node(tree: bpy.types.NodeTree, name: str, source: str) -> bpy.types.ShaderNodeScript:
+    """``script_node_from_source`` plus a UV Map node (makes Cycles export the UV attributes) and a UV
+    Tangent node wired into the script's Tangent input: the shape of every table shader's node."""
+    ensure_oslquery()  # before the node exists: assigning its script imports oslquery in Cycles' update
+    script = script_node_from_source(tree, name, source)
+    script.location = (0, 300)
+    uv = tree.nodes.new("ShaderNodeUVMap")
+    uv.location = (-400, 450)
+    tangent = tree.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-400, 250)
+    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    return script

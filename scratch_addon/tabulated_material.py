@@ -38,16 +38,7 @@ def glossy_twin_surface(tree, twin: dict, location=(-300, -200)):
 
 def tabulated_script(mat, source: str):
     """The table's INTERNAL OSL script node with UV Map and Tangent nodes wired in; returns its BSDF socket."""
-    tree = mat.node_tree
-    osl_compile.ensure_oslquery()
-    script = osl_compile.script_node_from_source(tree, f"{mat.name}.tabulated.osl", source)
-    script.location = (0, 300)
-    uv = tree.nodes.new("ShaderNodeUVMap")     # makes Cycles export the UV attributes
-    uv.location = (-400, 450)
-    tangent = tree.nodes.new("ShaderNodeTangent")
-    tangent.direction_type = "UV_MAP"
-    tangent.location = (-400, 250)
-    tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    script = osl_compile.uv_script_node(mat.node_tree, f"{mat.name}.tabulated.osl", source)
     return script.outputs["BSDF"]
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("precompute", "osl", "node_groups", "scratch_addon")
 PAPERS = ("scratch", "microgeometry", "biscale", "iridescence")
-SHARED = ("cycles", "tables", "validation")
+SHARED = ("cycles", "tables", "validation", "parallel")
 BLENDER = {"bpy", "bmesh", "mathutils", "addon_utils", "cycles", "_cycles", "bl_ui", "bl_operators"}
 
 

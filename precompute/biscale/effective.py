@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from ..tables.tabulated_brdf import hemisphere_midpoints
 from ..tables import cache as _cache
 from ..tables import exr_io
 from .brdfs import Lobe, eval_material, material_lobes
@@ -156,12 +157,7 @@ class EffectiveBRDF:
     def albedo(self, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
         """Directional albedo ∫ f(ωi, ωo) cos θi dωi (RGB) for every grid direction ωo, by a
         midpoint rule in (cos θi, φi) on ``.eval`` — the white-furnace quantity."""
-        mu = (np.arange(n_theta) + 0.5) / n_theta
-        ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
-        M, PH = np.meshgrid(mu, ph, indexing="ij")
-        s = np.sqrt(1 - M ** 2)
-        wi = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
-        dw = (1.0 / n_theta) * (2 * np.pi / n_phi)
+        wi, dw = hemisphere_midpoints(n_theta, n_phi)
         out = []
         for wo in self.directions:
             f = self.eval(wi, np.broadcast_to(wo, wi.shape))

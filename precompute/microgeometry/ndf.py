@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -40,6 +39,7 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.ndimage import map_coordinates
 
+from ..parallel import ordered_map
 from .ellipsoid import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
 from .heightfield import HeightField, Plane, as_heightfield, fit_plane
 
@@ -304,22 +304,6 @@ def _workers() -> int:
     return max(1, min(2, os.cpu_count() or 1))
 
 
-def _map_ordered(fn, jobs, workers: int):
-    """``fn`` over ``jobs`` on ``workers`` threads (numpy's FFTs and ufuncs release the GIL), results in job
-    order, at most ``2 * workers`` jobs in flight (bounded memory)."""
-    jobs = list(jobs)
-    if workers <= 1 or len(jobs) <= 1:
-        for j in jobs:
-            yield fn(j)
-        return
-    with ThreadPoolExecutor(workers) as ex:
-        pending = []
-        for j in jobs:
-            pending.append(ex.submit(fn, j))
-            if len(pending) >= 2 * workers:
-                yield pending.pop(0).result()
-        for f in pending:
-            yield f.result()
 
 
 # ============================================================================ naive NDF
@@ -526,7 +510,7 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
         return core, b / d - pb, c / d - pc, ok
 
     workers = 1 if tile is None else _workers()
-    yield from _map_ordered(job, _tiles(ny, nx, T), workers)
+    yield from ordered_map(job, _tiles(ny, nx, T), workers)
 
 
 def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool = True,

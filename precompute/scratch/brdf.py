@@ -73,11 +73,11 @@ from __future__ import annotations
 import functools
 import os
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..parallel import ordered_map
 from ..tables import cache as _cache
 from ..tables import exr_io
 from ..validation import check_int, check_range, check_seed, finite, in_range
@@ -576,7 +576,8 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     nW = 1 + len(cos_scales) * (fresnel.channels if fresnel is not None and len(cos_scales) else 0)
     acc = np.zeros((nW, 3 if split else 1, M, M))
     lost_parts = []
-    for (pacc, i0), lost in _ordered_map(part, list(zip(cuts[:-1], cuts[1:])), int(workers)):
+    for (pacc, i0), lost in ordered_map(part, list(zip(cuts[:-1], cuts[1:])), int(workers),
+                                          in_flight=int(workers) + 1):
         acc[..., i0:i0 + pacc.shape[-1]] += pacc
         lost_parts.append(lost)
     lost_dom = np.concatenate([lost_parts[0]] + [lp[1:] for lp in lost_parts[1:]])
@@ -611,21 +612,6 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
     return acc, float(lost_bins.max(initial=0.0))
 
 
-def _ordered_map(fn, jobs, workers: int):
-    """``fn`` over ``jobs`` on ``workers`` threads, results in job order, at most ``workers`` jobs running and
-    ``workers`` finished results waiting (so memory holds at most ~2 ``workers`` parts)."""
-    if workers <= 1 or len(jobs) <= 1:
-        for j in jobs:
-            yield fn(j)
-        return
-    with ThreadPoolExecutor(workers) as ex:
-        pending = []
-        for j in jobs:
-            pending.append(ex.submit(fn, j))
-            if len(pending) > workers:
-                yield pending.pop(0).result()
-        for f in pending:
-            yield f.result()
 
 
 def _sub_edges(M: int, K: int) -> np.ndarray:

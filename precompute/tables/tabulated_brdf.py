@@ -129,6 +129,18 @@ def _unit_rows(name, w):
 
 
 # ----------------------------------------------------------------------------- the table
+
+def hemisphere_midpoints(n_theta: int = 64, n_phi: int = 128):
+    """Directions (n_theta * n_phi, 3) and their solid angle dω (sr) of the midpoint rule in (cos θ, φ) over
+    the upper hemisphere: ∫ g(ω) cos θ dω ≈ Σ g(ω_j) cos θ_j dω (the white-furnace quadrature)."""
+    mu = (np.arange(n_theta) + 0.5) / n_theta
+    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
+    M, PH = np.meshgrid(mu, ph, indexing="ij")
+    s = np.sqrt(1 - M ** 2)
+    wi = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
+    return wi, (1.0 / n_theta) * (2 * np.pi / n_phi)
+
+
 @dataclass
 class TabulatedBRDF:
     """A tabulated standard BRDF f(ωi, ωo) (1/sr, RGB); see the module docstring for the grids.
@@ -187,12 +199,7 @@ class TabulatedBRDF:
     def albedo(self, wo, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
         """Directional albedo ∫ f cos θi dωi (N, 3) for views wo (N, 3), midpoint rule in (cos θi, φi)."""
         wo = _unit_rows("wo", wo)
-        mu = (np.arange(n_theta) + 0.5) / n_theta
-        ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
-        M, PH = np.meshgrid(mu, ph, indexing="ij")
-        s = np.sqrt(1 - M ** 2)
-        wi = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
-        dw = (1.0 / n_theta) * (2 * np.pi / n_phi)
+        wi, dw = hemisphere_midpoints(n_theta, n_phi)
         return np.array([(self.eval(wi, np.broadcast_to(w, wi.shape)) * wi[:, 2:3]).sum(0) * dw for w in wo])
 
     def view_nodes(self) -> np.ndarray:
