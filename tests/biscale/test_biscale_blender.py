@@ -12,6 +12,22 @@ pytestmark = [pytest.mark.bpy]
 SMALL = dict(n_facets=1500, dir_res=6, normal_res=41, l_M=120)
 
 
+@pytest.fixture
+def bs(addon):
+    import bpy
+
+    mat = importlib.import_module(addon.__name__ + ".biscale_material")
+    ops = importlib.import_module(addon.__name__ + ".biscale_ops")
+    registered = []
+    for c in ops.classes:
+        if not hasattr(bpy.types, c.__name__):
+            bpy.utils.register_class(c)
+            registered.append(c)
+    yield mat, ops
+    for c in reversed(registered):
+        bpy.utils.unregister_class(c)
+
+
 def _geo(addon):
     return importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
 

@@ -186,29 +186,36 @@ def test_fit_vs_reference_studio(addon, scene, bmat, brdf, render_dir, capsys):
 
 
 @pytest.mark.bpy
-def test_bake_operator_reference_mode(addon, scene, bs, bmat):
+def test_bake_operator_reference_mode(addon, scene, bmat):
     import bpy
 
-    _mat, ops = bs
-    geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
-    tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
-    target = addon.render.add_plane(bpy.context.scene, size=2.0)
-    bpy.context.view_layer.objects.active = tile
-    bpy.context.scene.cycles.shading_system = False
-    with pytest.raises(RuntimeError, match="Direction Resolution"):  # the panel's name for dir_res
-        bpy.ops.scratch.bake_biscale(target=target.name, n_facets=500, dir_res=16, mode="REFERENCE")
-    assert not target.data.materials                      # nothing assigned on error
-    res = bpy.ops.scratch.bake_biscale(target=target.name, n_facets=800, dir_res=6, mode="REFERENCE")
-    assert res == {"FINISHED"}
-    m = target.data.materials[0]
-    assert m["biscale_mode"] == "reference"
-    assert any(n.bl_idname == "ShaderNodeScript" for n in m.node_tree.nodes)
-    assert not bpy.context.scene.cycles.shading_system    # the user's scene is left as it was ...
-    switch = m.node_tree.nodes["Scratch Render Path"]     # ... and the fitted closures render in it
-    assert switch.outputs[0].links[0].to_node.target == "CYCLES"
-    assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
-    assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"
-    with pytest.raises(ValueError, match="mode"):
-        bmat.make_biscale_material(None, mode="exact")
-    with pytest.raises(ValueError, match="brdf"):
-        bmat.make_biscale_material(None, mode="reference")
+    ops = importlib.import_module(addon.__name__ + ".biscale_ops")
+    registered = [c for c in ops.classes if not hasattr(bpy.types, c.__name__)]
+    for c in registered:
+        bpy.utils.register_class(c)
+    try:
+        geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
+        tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
+        target = addon.render.add_plane(bpy.context.scene, size=2.0)
+        bpy.context.view_layer.objects.active = tile
+        bpy.context.scene.cycles.shading_system = False
+        with pytest.raises(RuntimeError, match="Direction Resolution"):  # the panel's name for dir_res
+            bpy.ops.scratch.bake_biscale(target=target.name, n_facets=500, dir_res=16, mode="REFERENCE")
+        assert not target.data.materials                      # nothing assigned on error
+        res = bpy.ops.scratch.bake_biscale(target=target.name, n_facets=800, dir_res=6, mode="REFERENCE")
+        assert res == {"FINISHED"}
+        m = target.data.materials[0]
+        assert m["biscale_mode"] == "reference"
+        assert any(n.bl_idname == "ShaderNodeScript" for n in m.node_tree.nodes)
+        assert not bpy.context.scene.cycles.shading_system    # the user's scene is left as it was ...
+        switch = m.node_tree.nodes["Scratch Render Path"]     # ... and the fitted closures render in it
+        assert switch.outputs[0].links[0].to_node.target == "CYCLES"
+        assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
+        assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"
+        with pytest.raises(ValueError, match="mode"):
+            bmat.make_biscale_material(None, mode="exact")
+        with pytest.raises(ValueError, match="brdf"):
+            bmat.make_biscale_material(None, mode="reference")
+    finally:
+        for c in reversed(registered):
+            bpy.utils.unregister_class(c)

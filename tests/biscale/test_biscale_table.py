@@ -93,25 +93,32 @@ def test_fine_table_removes_the_interpolation_error():
 
 # ----------------------------------------------------------------------------- Blender
 @pytest.mark.bpy
-def test_bake_operator_makes_the_table_by_default(addon, scene, bs):
+def test_bake_operator_makes_the_table_by_default(addon, scene):
     import bpy
 
-    _mat, ops = bs
-    geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
-    tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
-    target = addon.render.add_plane(bpy.context.scene, size=2.0)
-    bpy.context.view_layer.objects.active = tile
-    assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=6) == {"FINISHED"}
-    m = target.data.materials[0]
-    assert m["biscale_mode"] == "table" and m["tabulated_res"] == btable.closure_res(6)   # the finer table
-    assert not m.cycles.use_bump_map_correction
-    switch = m.node_tree.nodes["Scratch Render Path"]
-    assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
-    assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"   # the fitted twin
-    n_mat = len(bpy.data.materials)
-    with pytest.raises(RuntimeError, match="Direction Resolution.*at most 19"):   # the panel's name
-        bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=24)
-    assert len(bpy.data.materials) == n_mat and target.data.materials[0] == m
+    ops = importlib.import_module(addon.__name__ + ".biscale_ops")
+    registered = [c for c in ops.classes if not hasattr(bpy.types, c.__name__)]
+    for c in registered:
+        bpy.utils.register_class(c)
+    try:
+        geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
+        tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
+        target = addon.render.add_plane(bpy.context.scene, size=2.0)
+        bpy.context.view_layer.objects.active = tile
+        assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=6) == {"FINISHED"}
+        m = target.data.materials[0]
+        assert m["biscale_mode"] == "table" and m["tabulated_res"] == btable.closure_res(6)   # the finer table
+        assert not m.cycles.use_bump_map_correction
+        switch = m.node_tree.nodes["Scratch Render Path"]
+        assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
+        assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"   # the fitted twin
+        n_mat = len(bpy.data.materials)
+        with pytest.raises(RuntimeError, match="Direction Resolution.*at most 19"):   # the panel's name
+            bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=24)
+        assert len(bpy.data.materials) == n_mat and target.data.materials[0] == m
+    finally:
+        for c in reversed(registered):
+            bpy.utils.unregister_class(c)
 
 
 @pytest.mark.bpy
