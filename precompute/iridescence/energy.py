@@ -44,14 +44,17 @@ exact=False; |error| ≤ 0.0087, no trigonometry), this module's default so it i
 Overlap
 -------
 Eq. 7 adds overlapping scratches incoherently, so E can exceed 1 (several λ/4 scratches on one
-coherence area).  ``normalise`` maps E to N(E) = E up to ``KNEE`` and to 1 − (1 − KNEE) e^{−(E −
-KNEE)/(1 − KNEE)} above (C¹, bounded by 1): the base is weighted by 1 − N(E) ≥ 0 and the scratch term
-by N(E)/E ≤ 1, so the layer never creates energy and a white furnace still sees exactly the base's
-albedo (E·N/E + 1 − N = 1).  Below the knee the layer is the model unchanged.  The shader estimates E
-per sample from the same RIS candidates as its scratch term (unbiased; given the candidates the
-scratch lobes' albedo is that estimate, so the furnace balance holds sample by sample) and applies N
+coherence area).  ``normalise`` maps E to N(E) = E up to ``KNEE``, to E − (E − KNEE)²/(4(1 − KNEE))
+from there to ``SATURATION`` = 2 − KNEE and to 1 beyond (C¹, monotone, bounded by 1): the base is
+weighted by 1 − N(E) ≥ 0 and the scratch term by N(E)/E ≤ 1, so the layer never creates energy and a
+white furnace still sees exactly the base's albedo (E·N/E + 1 − N = 1).  Below the knee the layer is
+the model unchanged; where the scratches take more than ``SATURATION`` times what is there the base
+weight is exactly 0, as eq. 6's clamped (1 − ρ) is where ρ ≥ 1 (Cycles then drops the base closure;
+the quadratic also costs the shader no exp).  The shader estimates E per sample (route A: from its
+lobe's segment, route B: from the RIS candidates; unbiased; given the candidates and the segment the
+scratch lobe's albedo is that estimate, so the furnace balance holds sample by sample) and applies N
 to the estimate: where the estimate crosses the knee (dense sets) the scratches render a few % darker
-than with the exact E of ``evaluate`` (4 % in the densest render test; exhaustive candidates: exact).
+than with the exact E of ``evaluate`` (exhaustive candidates, route B: exact).
 
 Units: W, D, λ, σ in µm; everything returned is dimensionless.
 """
@@ -60,10 +63,12 @@ from __future__ import annotations
 import numpy as np
 from scipy import special
 
-__all__ = ["KNEE", "TAIL_COEF", "coverage", "tail_fraction", "propagating_fraction", "normalise", "base_weight"]
+__all__ = ["KNEE", "SATURATION", "TAIL_COEF", "coverage", "tail_fraction", "propagating_fraction", "normalise", "base_weight"]
 
 #: E up to which the layer is the model unchanged (see ``normalise``).
 KNEE = 0.8
+#: E from which the scratches take everything (N = 1, base weight 0): 2 − KNEE (``normalise``).
+SATURATION = 2.0 - KNEE
 #: Rational tail T(x) ≈ (1 + a₁x + a₂x²)/(2 + b₁x + b₂x² + π a₂ x³): exact at 0 and as 1/(πx) at ∞;
 #: minimax fit to the exact tail on [0, 1e6], max |error| 0.0087 (at x ≈ 7.8, the first side lobe).
 TAIL_COEF = (-0.31703603, 0.12523624, 0.29740418, -0.39897547)
@@ -110,12 +115,14 @@ def propagating_fraction(wo_t, wo_b, W_um, lam_um, exact: bool = False) -> np.nd
 def normalise(E):
     """(N(E), N(E)/E): the energy the layer moves and the factor on the scratch term (module docstring).
 
-    N(E) = E for E ≤ KNEE, 1 − (1 − KNEE) exp(−(E − KNEE)/(1 − KNEE)) above: continuous with its first
-    derivative, < 1 for every finite E.  The factor is 1 where E ≤ KNEE (also at E = 0).
+    N(E) = E for E ≤ KNEE, E − (E − KNEE)²/(4(1 − KNEE)) up to SATURATION = 2 − KNEE, 1 above:
+    continuous with its first derivative (1 at the knee, 0 at saturation), ≤ 1.  The factor is 1
+    where E ≤ KNEE (also at E = 0).  The shader's twin: ``osl/iridescent_layer.osl`` (no exp).
     """
     E = np.maximum(np.asarray(E, float), 0.0)
     k = KNEE
-    N = np.where(E <= k, E, 1.0 - (1.0 - k) * np.exp(-(E - k) / (1.0 - k)))
+    d = np.clip(E - k, 0.0, SATURATION - k)
+    N = np.where(E <= k, E, np.minimum(E - d * d * (0.25 / (1.0 - k)), 1.0))
     return N, np.where(E <= k, 1.0, N / np.where(E > 0.0, E, 1.0))
 
 

@@ -102,11 +102,15 @@ def test_normalise_is_the_identity_below_the_knee_smooth_and_bounded():
     N, fac = en.normalise(E)
     below = E <= en.KNEE
     assert np.array_equal(N[below], E[below]) and np.all(fac[below] == 1.0)
-    assert np.all(N <= 1.0) and np.all(N[E < 5] < 1.0) and np.all(np.diff(N) >= 0) and np.allclose(fac * E, N)
-    assert np.all(np.diff(N[E < 5]) > 0)
+    sat = E >= en.SATURATION
+    assert np.all(N <= 1.0) and np.all(N[~sat] < 1.0) and np.all(np.diff(N) >= 0) and np.allclose(fac * E, N)
+    assert np.all(np.diff(N[~sat]) > 0) and np.all(N[sat] == 1.0)   # the scratches take all from saturation on
     dN = np.gradient(N, E)
-    assert np.abs(np.diff(dN)).max() < 1e-3                       # C¹: no kink at the knee
-    assert en.base_weight(0.0) == 1.0 and 0.0 <= en.base_weight(100.0) < 1e-100
+    assert np.abs(np.diff(dN)).max() < 1e-3                       # C¹: no kink at the knee nor at saturation
+    assert en.base_weight(0.0) == 1.0 and en.base_weight(100.0) == 0.0 and en.base_weight(en.SATURATION) == 0.0
+    # quadratic branch: the closed form, checked at the midpoint (E = 1 for KNEE 0.8: 1 − 0.2²/0.8 = 0.95)
+    mid = 0.5 * (en.KNEE + en.SATURATION)
+    assert np.isclose(en.normalise(mid)[0], mid - (mid - en.KNEE) ** 2 / (4 * (1 - en.KNEE)))
 
 
 # ----------------------------------------------------------------------------- the numpy furnace

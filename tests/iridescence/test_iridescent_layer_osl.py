@@ -123,7 +123,8 @@ def _replay_candidates(spec, uv, trials, rng, wo=None):
     """numpy replay of the shader's RIS candidate stage (cell lookup, stratified quanta, binary
     search, weights 1/(NCAND p)) from the generated tables: per point and trial
     R = Σ_i w_i |η_s|²_i Hbar_sum_i, ρ̂ = Σ_i w_i ρ_i and (with views ``wo`` (P, 3) in the UV frame)
-    Ê = Σ_i w_i |η_s|²_i Hbar_i F_i (the energy estimate, the shader's ``energy_share``), (P, trials, 3)."""
+    Ê = R Hbar_i F_i / Hbar_sum_i of the candidate i picked ∝ r_i for the lobe (the energy estimate, the shader's
+    ``energy_share`` of route A), (P, trials, 3)."""
     tab = ly.shader_tables(spec)
     g, packed, qb = tab["grid"], tab["packed"], tab["qbits"]
     seg = tab["segments"].reshape(-1, ly.NS).astype(np.float64)
@@ -136,6 +137,7 @@ def _replay_candidates(spec, uv, trials, rng, wo=None):
     R = np.zeros((uv.shape[0], trials))
     rho = np.zeros_like(R)
     E = np.zeros(R.shape + (3,))
+    r_i, e_i = np.zeros((K,) + R.shape), np.zeros((K,) + R.shape + (3,))   # per candidate: r, Hbar F / Hbar_sum
     lam = np.asarray(spec.wavelengths_um, np.float32)
     ends = packed & (Q - 1)
     for i in range(uv.shape[0]):
@@ -157,7 +159,8 @@ def _replay_candidates(spec, uv, trials, rng, wo=None):
             inr = sb ** 2 + gap ** 2 <= (ly.REACH_SIGMA * sig) ** 2
             e2 = np.exp(-sb ** 2 / (2 * sig ** 2))
             eta = np.pi * sig ** 2 * e2 ** 2 * (special.erf(st2 / sig) - special.erf(st1 / sig))
-            R[i] += np.where(inr, w * eta * seg[m, 9], 0.0)
+            r_i[ci, i] = np.where(inr, w * eta * seg[m, 9], 0.0)
+            R[i] += r_i[ci, i]
             rho[i] += np.where(inr, w * seg[m, 10] * e2 * (special.erf(st2 / (np.sqrt(2) * sig))
                                                          - special.erf(st1 / (np.sqrt(2) * sig))), 0.0)
             if wo is not None:
@@ -165,7 +168,13 @@ def _replay_candidates(spec, uv, trials, rng, wo=None):
                 rr = np.sqrt(np.maximum(0.0, 1.0 - ot * ot))[:, None]
                 kW = 2 * np.pi * seg[m, 5][:, None] / lam
                 F = np.clip(1 - en.tail_fraction(kW * (rr + ob[:, None])) - en.tail_fraction(kW * (rr - ob[:, None])), 0, 1)
-                E[i] += np.where(inr, w * eta, 0.0)[:, None] * seg[m, 6:9] * F
+                e_i[ci, i] = seg[m, 6:9] * F / seg[m, 9][:, None]
+        if wo is not None:
+            # the lobe's segment: candidate i with probability r_i / R (the shader's stratified pick, KS = 1);
+            # Ê = R Hbar_i F_i / Hbar_sum_i (its expected albedo given the candidates and the segment)
+            y = rng.random(trials) * R[i]
+            pick = np.minimum((np.cumsum(r_i[:, i], 0) <= y[None]).sum(0), K - 1)
+            E[i] = R[i][:, None] * e_i[pick, i, np.arange(trials)]
     return (R, rho, E) if wo is not None else (R, rho)
 
 
@@ -217,8 +226,8 @@ def test_candidate_distribution_is_exact_and_covers_every_listed_segment():
 
 @pytest.mark.parametrize("count, domain, th", [(1200, (0.4, 0.4, 0.6, 0.6), 60.0), (150, (0.0, 0.0, 1.0, 1.0), 10.0)])
 def test_energy_estimate_is_unbiased(count, domain, th):
-    # The shader weights the base by 1 − N(Ê) and its lobes by N(Ê)/Ê with Ê = Σ_i w_i η_i Hbar_i F_i from
-    # the RIS candidates: E[Ê] must be the numpy model's E (``evaluate(...).energy``: every segment in
+    # The shader weights the base by 1 − N(Ê) and its lobes by N(Ê)/Ê with Ê = R Hbar_i F_i / Hbar_sum_i of the
+    # lobe's segment i (picked ∝ r_i among the RIS candidates): E[Ê] must be the numpy model's E (``evaluate(...).energy``: every segment in
     # reach, exact erf, float64, the same rational tail).
     S = random_scratches(count, length_range=(0.05, 0.15), domain=domain, uv_scale_um=2e4, seed=count + 1)
     spec = ly.LayerSpec(S, candidates=4).validate()
