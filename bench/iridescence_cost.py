@@ -8,14 +8,16 @@ roughness 0.2, anisotropy 0.8) rendered with Cycles' default shading system (SVM
 same run, rounds interleaved (A/B/A/B ...), medians over rounds.
 
 Rows: the base on SVM; the same base under the OSL shading system (no layer: what OSL itself costs);
-the layer (routes A and B) with the default candidates; stage breakdown by disabling stages one at a
-time in the generated source (no scratch in reach: grid lookup only; candidates without the lobe /
-closed forms; the energy-consistent base weight off).
+the layer (route A) with the default candidates; stage breakdown by disabling stages one at a time in
+the generated source (no scratch in reach: grid lookup only; the candidates and eq. 6's ρ without the
+lobe (with the energy weight, KS 0 would let OSL's optimiser drop the candidate loop too: route A
+estimates E from its lobe); one candidate; eq. 6's weight; no base weight).
 
 Run: ``.venv/bin/python -m bench iridescence_cost [--quick]``.
 """
 from __future__ import annotations
 
+import os
 import resource
 import statistics
 import tempfile
@@ -143,7 +145,7 @@ CONFIGS = [
     ("layer A", dict(route="lobes")),
     ("layer A, eq. 6 weight (before #17)", dict(route="lobes", base_weight="paper")),
     ("layer A, no base weight", dict(route="lobes", base_blend=False)),
-    ("layer A, no lobes (KS 0)", dict(route="lobes", edit=define("KS", "0"))),
+    ("layer A, eq. 6 weight, no lobes (KS 0)", dict(route="lobes", base_weight="paper", edit=define("KS", "0"))),
     ("layer A, 1 candidate", dict(route="lobes", candidates=1)),
     ("layer A, nothing in reach", dict(route="lobes", edit=define("NX", "0"))),
 ]
@@ -160,7 +162,9 @@ def main(argv) -> int:
     res = (64, 64) if quick else (128, 128)
     tmp = tempfile.mkdtemp()
     sets = scratch_sets(im, quick)
+    load0 = os.getloadavg()
     res_t = cost_table(render, im, sets, CONFIGS, n=n, rounds=rounds, res=res, tmp=tmp)
+    load1 = os.getloadavg()
     rows = []
     for sname, _S in sets:
         med = {c: statistics.median(v[0] for v in res_t[(sname, c)]) for c, _kw in CONFIGS}
@@ -177,8 +181,10 @@ def main(argv) -> int:
              "interleaved rounds.  × base = per-sample cost / the SVM anisotropic Glossy (Multiscatter GGX, "
              "roughness 0.2, anisotropy 0.8) on SVM in the same round set.  CPU seconds of the rendering process "
              "(user + system, all threads): robust to other processes sharing the cores.  Rows below 'layer A' are "
-             "the stage breakdown: the eq. 6 weight (the layer before issue #17), no base weight, no lobes (KS 0: "
-             "candidates and weight only), one candidate, and no scratch in reach (grid lookup only).")
+             "the stage breakdown: the eq. 6 weight (the layer before issue #17), no base weight, eq. 6 weight without "
+             "lobes (KS 0: candidates and ρ only), one candidate, and no scratch in reach (grid lookup only).  "
+             f"Machine load (1-min load average, {os.cpu_count()} cores) at the start / end of the run: "
+             f"{load0[0]:.1f} / {load1[0]:.1f}.")
     report("iridescence_cost", ["set", "setup", "CPU ms / sample", "wall ms / sample", "× base SVM (CPU)",
                                 "× base OSL (CPU)"], rows, notes)
     return 0

@@ -50,7 +50,10 @@ cell's point-independent bound distribution (``candidate_weights``: upper bounds
 over the cell, quantised to exact integer probabilities packed with the segment index), each
 evaluated exactly and weighted 1/(N p): route A resamples the lobes among them by their proxy mass
 (RIS, Rtot = Σ r_i replaces ΣH), route B sums their closed forms, ρ̂ = Σ ρ_i/(N p_i).  All three
-are unbiased (tests/test_iridescent_layer_osl.py replays the stage in numpy); cost is O(N log n).
+are unbiased (tests/test_iridescent_layer_osl.py replays the stage in numpy); cost is O(N log n), and a
+segment drawn by consecutive strata is evaluated once (route A).  Route A estimates the energy the
+scratches take (the base weight, ``precompute.iridescence.energy``) from its lobe's segment: one
+propagating fraction per lobe, not per candidate.
 
 Shading points whose reach-grid cell is empty (no segment within 3σ of any point of the cell)
 do one table lookup and return ``Base`` unchanged.
