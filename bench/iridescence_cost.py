@@ -95,6 +95,15 @@ def define(name, value):
     return edit
 
 
+def replace(old, new):
+    """An ``edit`` that replaces the text ``old`` (which must occur) of the generated source by ``new``."""
+    def edit(src):
+        if old not in src:
+            raise ValueError(f"stage edit: {old!r} not in the generated source")
+        return src.replace(old, new)
+    return edit
+
+
 def cpu_seconds() -> float:
     """User + system CPU time of this process (all render threads)."""
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -148,6 +157,8 @@ CONFIGS = [
     ("layer A, eq. 6 weight, no lobes (KS 0)", dict(route="lobes", base_weight="paper", edit=define("KS", "0"))),
     ("layer A, 1 candidate", dict(route="lobes", candidates=1)),
     ("layer A, nothing in reach", dict(route="lobes", edit=define("NX", "0"))),
+    ("layer A, frame from dPdu (no Tangent node; measurement only)", dict(route="lobes", edit=replace(
+        "vector T = Tangent;", "vector T = dPdu;"))),
 ]
 
 
@@ -182,7 +193,9 @@ def main(argv) -> int:
              "roughness 0.2, anisotropy 0.8) on SVM in the same round set.  CPU seconds of the rendering process "
              "(user + system, all threads): robust to other processes sharing the cores.  Rows below 'layer A' are "
              "the stage breakdown: the eq. 6 weight (the layer before issue #17), no base weight, eq. 6 weight without "
-             "lobes (KS 0: candidates and ρ only), one candidate, and no scratch in reach (grid lookup only).  "
+             "lobes (KS 0: candidates and ρ only), one candidate, no scratch in reach (grid lookup only), and the "
+             "shading frame from dPdu instead of the Tangent node's UV tangent (wrong on most meshes: it only "
+             "measures what the Tangent node's attribute lookup and object-to-world transform cost).  "
              f"Machine load (1-min load average, {os.cpu_count()} cores) at the start / end of the run: "
              f"{load0[0]:.1f} / {load1[0]:.1f}.")
     report("iridescence_cost", ["set", "setup", "CPU ms / sample", "wall ms / sample", "× base SVM (CPU)",
