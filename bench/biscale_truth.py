@@ -1,12 +1,14 @@
 """Bi-scale ground truth: explicit tiles rendered by Cycles vs the baked material (Wu et al. 2011).
 
-The tile is repeated n x n (default 300 x 300) on a 4 m plane with its small-scale materials as
-ordinary Cycles BSDFs (``scratch_addon.biscale_truth``); the baked material covers a plain plane.
-Both are seen by an orthographic camera along several views, lit by a direction-coded environment
-(0.5 + 0.5 d) plus an area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 8 (full
-GI).  Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
+The tile is repeated 100 x 100 on a 4 m plane with its small-scale materials as ordinary Cycles
+BSDFs (``scratch_addon.biscale_truth``); the baked material covers a plain plane.  Both are seen by an
+orthographic camera along several views, lit by a direction-coded environment (0.5 + 0.5 d) plus an
+area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 16 (full GI).  Baked: the closure
+table (Wu's single bounce), the same plus the inter-reflections inside the tile
+(``precompute.biscale.interreflect``; GI rows), optionally the fitted closures of both (``--fit``).
+Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
 
-    .venv/bin/python -m bench biscale_truth [--quick] [--modes table,fit] [--gi]
+    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--spp 64] [--figure]
 """
 from __future__ import annotations
 
@@ -160,33 +162,30 @@ def main(argv: list[str]) -> int:
                  "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
                  f"{GI_BOUNCES} for the explicit tiles (the baked plane has nothing to bounce off). 'table': Wu's "
                  "single-bounce effective BRDF (closure table, res 19); '+ inter-refl.': plus bounces >= 2 inside "
-                 "the periodic tile (precompute.biscale.interreflect, res 10, 529 paths per view direction)")
+                 "the periodic tile (precompute.biscale.interreflect; indirect table res 10 x 529 paths per view direction "
+                 "for diffuse tiles, res 19 x 144 for the GGX α 0.2 groove, interreflect.indirect_res)")
     del addon
     return 0
 
 
 def figure(spp: int = 64) -> int:
-    """Explicit tiles | exact table | fitted closures for the pyramid tile at θo = 35°, direct light,
-    96x96 px, saved as docs/img/biscale_truth.png."""
+    """Explicit tiles (full GI) | table + inter-reflections | Wu's single-bounce table, for the groove tile
+    (diffuse + glossy) at θo = 35°, 16 bounces, 96x96 px; saved as docs/img/biscale_truth.png."""
     import bpy
 
     from bench._util import ROOT, pyplot
     from scratch_materials.precompute.biscale import geometry
-    from scratch_materials.precompute.biscale.effective import BiscaleTile
-    from scratch_materials.scratch_addon import biscale_material, biscale_truth, render
+    from scratch_materials.scratch_addon import biscale_truth, render
 
-    factory, kw, mats = TILES["pyramid (diffuse)"]
+    name = "groove (diffuse + glossy)"
+    factory, kw, mats = TILES[name]
     tile = getattr(geometry, factory)(**kw)
-    from scratch_materials.precompute.biscale import table as btable
-    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10)
-    brdf = bt.effective_brdf(mats)
-    table = btable.tabulate_tile(bt, mats)     # the closure's finer table, from the facets
-    from scratch_materials.precompute.biscale.fit import fit_closures
-    fit = fit_closures(brdf)
+    variants, _, _ = bake_variants(tile, mats, n_facets=10000, dir_res=10)
     tmp = tempfile.mkdtemp()
     imgs = []
     scene = bpy.context.scene
-    for kind in ("explicit", "table", "fit"):
+    kinds = ("explicit", "table + inter-refl.", "table")
+    for kind in kinds:
         for o in list(scene.objects):
             bpy.data.objects.remove(o)
         biscale_truth.direction_world(scene, "first")
@@ -194,17 +193,19 @@ def figure(spp: int = 64) -> int:
         if kind == "explicit":
             biscale_truth.explicit_tile_plane(scene, tile, mats, n=100, size=4.0)
         else:
-            render.add_plane(scene, size=4.0, material=biscale_material.make_biscale_material(
-                fit, name=kind, mode=kind, brdf=brdf, table=table if kind == "table" else None))
+            render.add_plane(scene, size=4.0, material=_material(kind, *variants[kind]))
         render.add_camera(scene, location=tuple(5 * _view(35, 0)), target=(0, 0, 0), ortho_scale=1.2)
-        render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=0)
-        img, _ = render.render_array(scene, tmp, kind)
+        render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=GI_BOUNCES)
+        img, _ = render.render_array(scene, tmp, "fig")
         imgs.append(img)
     plt = pyplot()
-    fig, ax = plt.subplots(1, 3, figsize=(9, 3.3))
-    for a, im, title in zip(ax, imgs, ("explicit 100x100 tiles", "exact table (closure)", "fitted closures")):
-        a.imshow(np.clip(im, 0, 1) ** (1 / 2.2))
-        a.set_title(f"{title}\nmean {im.mean():.4f}", fontsize=9)
+    fig, ax = plt.subplots(1, 3, figsize=(9, 3.4))
+    titles = ("explicit 100x100 grooves\n(Cycles, 16 bounces)", "table + inter-reflections", "table, single bounce (Wu)")
+    ref = imgs[0].reshape(-1, 3).mean(0)
+    for a, im, title in zip(ax, imgs, titles):
+        a.imshow(np.clip(im / max(float(imgs[0].max()), 1e-6), 0, 1) ** (1 / 2.2))
+        m = im.reshape(-1, 3).mean(0)
+        a.set_title(f"{title}\nmean {m.mean():.3f} ({100 * (m.mean() / ref.mean() - 1):+.1f} %)", fontsize=9)
         a.axis("off")
     fig.tight_layout()
     out = ROOT / "docs" / "img" / "biscale_truth.png"
