@@ -28,6 +28,10 @@ TILES = {
                                    {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0,
                                     "ks": 0.8},
                                    {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+    "pyramid, glossy sides on a diffuse floor": ("pyramid_tile", dict(height=0.4, base=0.7),
+                                                 [{"model": "lambert", "albedo": (0.7, 0.5, 0.3)},
+                                                  {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.3,
+                                                   "F0": 1.0, "ks": 0.7, "kd": 0.2}]),
 }
 VIEWS = [(0.0, 0.0), (35.0, 0.0), (60.0, 90.0), (60.0, 20.0)]   # (θo, φo) degrees
 GI_BOUNCES = 16

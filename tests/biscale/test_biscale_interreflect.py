@@ -169,3 +169,25 @@ def test_resample_is_identity_on_its_own_grid_and_keeps_constants():
     T = rng.random((36, 36, 3))
     np.testing.assert_allclose(ir.resample(T, 6, 6), T, atol=1e-12)
     np.testing.assert_allclose(ir.resample(np.full((36, 36, 3), 0.3), 6, 11), 0.3, atol=1e-12)
+
+
+@pytest.mark.parametrize("theta", [10.0, 50.0, 85.0])
+def test_direction_sampler_is_unbiased(theta):
+    """The bounce sampler (cosine + GGX half-vector mixture, weight f cos / pdf_mix) integrates a GGX
+    α = 0.2 lobe to its directional albedo (midpoint rule, 256 x 512): measured within 0.15 % at
+    400k samples; bound 1.5 % at 100k (per-sample std / mean < 1.5, so the standard error is < 0.5 %).
+    A pdf missing its cosine part (pure GGX weight) or with the wrong Jacobian 1/(4 ωo·h) fails."""
+    from scratch_materials.precompute.biscale.brdfs import eval_material, material_lobes
+    from scratch_materials.precompute.tables.tabulated_brdf import hemisphere_midpoints
+
+    lob = material_lobes({"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0, "ks": 0.8})
+    n = np.array([[0.0, 0.0, 1.0]])
+    wo = np.array([[np.sin(np.radians(theta)), 0.0, np.cos(np.radians(theta))]])
+    N = 100_000
+    w, pdf = ir._sample_dirs(np.random.default_rng(0), np.repeat(n, N, 0), np.repeat(wo, N, 0), np.full(N, 0.8),
+                             np.full(N, 0.2))
+    f = eval_material(lob, n, w, wo)[:, 0]
+    est = np.where(pdf > 0, f * np.clip(w[:, 2], 0, None) / np.where(pdf > 0, pdf, 1.0), 0.0).mean()
+    wi, dw = hemisphere_midpoints(256, 512)
+    ref = (eval_material(lob, n, wi, wo)[:, 0] * wi[:, 2]).sum() * dw
+    assert est == pytest.approx(ref, rel=0.015)
