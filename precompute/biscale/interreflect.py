@@ -59,6 +59,8 @@ N_PATHS = 512
 #: atan(h / (MAX_TILES P)) of the horizon, < 1e-3 of the cosine-weighted sphere for h <= P).
 MAX_TILES = 64
 _CHUNK = 1_000_000
+#: Most paths traced at once (all outgoing directions together; ~1 KiB of state per path).
+MAX_TOTAL_PATHS = 2_000_000
 
 
 # ----------------------------------------------------------------------------- periodic ray cast
@@ -361,6 +363,9 @@ def indirect_table(tile, materials, res: int = INDIRECT_RES, n_paths: int = N_PA
     dirs = direction_grid(int(res)) if wi is None else np.asarray(wi, np.float64).reshape(-1, 3)
     dirs_o = direction_grid(int(res)) if wo is None else np.asarray(wo, np.float64).reshape(-1, 3)
     D, Do = len(dirs), len(dirs_o)
+    if Do * math.ceil(math.sqrt(int(n_paths))) ** 2 > MAX_TOTAL_PATHS:   # all paths live at once: bounded memory
+        raise ValueError(f"n_paths: at most {MAX_TOTAL_PATHS // Do} paths per outgoing direction for {Do} "
+                         f"directions (memory), got {n_paths!r}")
     # --- primary hits: stratified over the sheared footprint, per ωo
     m_side = max(1, int(math.ceil(math.sqrt(n_paths))))
     n_p = m_side * m_side

@@ -191,3 +191,11 @@ def test_direction_sampler_is_unbiased(theta):
     wi, dw = hemisphere_midpoints(256, 512)
     ref = (eval_material(lob, n, wi, wo)[:, 0] * wi[:, 2]).sum() * dw
     assert est == pytest.approx(ref, rel=0.015)
+
+
+def test_path_count_is_bounded():
+    """All paths are traced at once: more than MAX_TOTAL_PATHS is refused (memory), not swapped."""
+    t = pyramid_tile()
+    b = BiscaleTile(t.vertices, t.faces, t.face_material, n_facets=100, dir_res=4)
+    with pytest.raises(ValueError, match="n_paths"):
+        ir.indirect_table(b, GREY, res=19, n_paths=1_000_000)
