@@ -1,12 +1,14 @@
 """Bi-scale ground truth: explicit tiles rendered by Cycles vs the baked material (Wu et al. 2011).
 
-The tile is repeated n x n (default 300 x 300) on a 4 m plane with its small-scale materials as
-ordinary Cycles BSDFs (``scratch_addon.biscale_truth``); the baked material covers a plain plane.
-Both are seen by an orthographic camera along several views, lit by a direction-coded environment
-(0.5 + 0.5 d) plus an area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 8 (full
-GI).  Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
+The tile is repeated 100 x 100 on a 4 m plane with its small-scale materials as ordinary Cycles
+BSDFs (``scratch_addon.biscale_truth``); the baked material covers a plain plane.  Both are seen by an
+orthographic camera along several views, lit by a direction-coded environment (0.5 + 0.5 d) plus an
+area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 16 (full GI).  Baked: the closure
+table (Wu's single bounce), the same plus the inter-reflections inside the tile
+(``precompute.biscale.interreflect``; GI rows), optionally the fitted closures of both (``--fit``).
+Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
 
-    .venv/bin/python -m bench biscale_truth [--quick] [--modes table,fit] [--gi]
+    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--spp 64] [--figure]
 """
 from __future__ import annotations
 
@@ -26,8 +28,13 @@ TILES = {
                                    {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0,
                                     "ks": 0.8},
                                    {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+    "pyramid (glossy sides on diffuse floor)": ("pyramid_tile", dict(height=0.4, base=0.7),
+                                                 [{"model": "lambert", "albedo": (0.7, 0.5, 0.3)},
+                                                  {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.3,
+                                                   "F0": 1.0, "ks": 0.7, "kd": 0.2}]),
 }
 VIEWS = [(0.0, 0.0), (35.0, 0.0), (60.0, 90.0), (60.0, 20.0)]   # (θo, φo) degrees
+GI_BOUNCES = 16
 
 
 def _view(theta, phi):
@@ -37,15 +44,24 @@ def _view(theta, phi):
 
 def render_pair(tile, materials, mat, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None):
     """Mean RGB of the explicit tiles and of ``mat`` on a plane for each view; returns (explicit, baked, seconds)."""
+    ex, bk, secs = render_set(tile, materials, {"baked": mat}, views, n=n, spp=spp, res=res, bounces=bounces,
+                              lamp=lamp, tmp=tmp)
+    return ex, bk["baked"], secs
+
+
+def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None,
+               seed=7):
+    """Mean RGB per view of the explicit tiles (rendered once) and of every baked material in ``mats``
+    (name -> material) on a plane: returns (explicit (V, 3), {name: (V, 3)}, seconds per kind)."""
     import bpy
 
     from scratch_materials.scratch_addon import biscale_truth, render
 
     tmp = tmp or tempfile.mkdtemp()
     scene = bpy.context.scene
-    out = {"explicit": [], "baked": []}
-    secs = {"explicit": 0.0, "baked": 0.0}
-    for kind in ("explicit", "baked"):
+    out = {k: [] for k in ["explicit", *mats]}
+    secs = {k: 0.0 for k in out}
+    for kind in out:
         for o in list(scene.objects):
             bpy.data.objects.remove(o)
         biscale_truth.direction_world(scene, "first")
@@ -54,95 +70,126 @@ def render_pair(tile, materials, mat, views, n=300, spp=64, res=32, bounces=0, l
         if kind == "explicit":
             biscale_truth.explicit_tile_plane(scene, tile, materials, n=n, size=4.0)
         else:
-            render.add_plane(scene, size=4.0, material=mat)
+            render.add_plane(scene, size=4.0, material=mats[kind])
         for wo in views:
             for c in [o for o in scene.objects if o.type == "CAMERA"]:
                 bpy.data.objects.remove(c)
             up = (0, 1, 0) if abs(wo[2]) > 0.999 else None
             loc = tuple(5 * wo + (np.array([0, -1e-3, 0]) if up else 0))
             render.add_camera(scene, location=loc, target=(0, 0, 0), ortho_scale=0.4)
-            render.configure_cycles(scene, samples=spp, res=(res, res), seed=7, osl=True, max_bounces=bounces)
-            img, s = render.render_array(scene, tmp, f"{kind}")
+            render.configure_cycles(scene, samples=spp, res=(res, res), seed=seed, osl=True, max_bounces=bounces)
+            img, s = render.render_array(scene, tmp, "explicit" if kind == "explicit" else "baked")
             out[kind].append(img.reshape(-1, 3).mean(0))
             secs[kind] += s
-    return np.array(out["explicit"]), np.array(out["baked"]), secs
+    ex = np.array(out.pop("explicit"))
+    return ex, {k: np.array(v) for k, v in out.items()}, secs
+
+
+def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False):
+    """The baked materials' tables for one tile: the direct (Wu) closure table, the same plus the
+    inter-reflected part (``interreflect.tile_indirect``), optionally the closure fits of both.
+    Returns (dict name -> (TabulatedBRDF | ClosureFit, EffectiveBRDF), timings, indirect info)."""
+    from scratch_materials.precompute.biscale import interreflect
+    from scratch_materials.precompute.biscale import table as btable
+    from scratch_materials.precompute.biscale.effective import BiscaleTile, EffectiveBRDF
+    from scratch_materials.precompute.biscale.fit import fit_closures
+    from scratch_materials.precompute.tables.tabulated_brdf import TabulatedBRDF
+
+    t0 = time.perf_counter()
+    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=n_facets, dir_res=dir_res)
+    brdf = bt.effective_brdf(mats)
+    t_eff = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    table = btable.tabulate_tile(bt, mats)        # the closure's finer table (direct, eq. 8)
+    t_tab = time.perf_counter() - t0
+    ind, info = interreflect.tile_indirect(bt, mats, True)
+    r = info["res"]
+    table_gi = TabulatedBRDF(table.table + interreflect.resample(ind, r, table.res), table.res, False, table.info)
+    brdf_gi = EffectiveBRDF(brdf.table + interreflect.resample(ind, r, brdf.dir_res), brdf.dir_res, brdf.info)
+    out = {"table": (table, brdf), "table + inter-refl.": (table_gi, brdf_gi)}
+    if fit:
+        out["fit"] = (fit_closures(brdf), brdf)
+        out["fit + inter-refl."] = (fit_closures(brdf_gi), brdf_gi)
+    times = {"effective (dir_res %d)" % dir_res: t_eff, "table": t_tab, "inter-refl.": info["seconds"]}
+    return out, times, info
+
+
+def _material(name, obj, brdf):
+    from scratch_materials.scratch_addon import biscale_material
+
+    if name.startswith("fit"):
+        return biscale_material.make_biscale_material(obj, name=name, mode="fit", brdf=brdf)
+    return biscale_material.make_biscale_material(None, name=name, mode="table", brdf=brdf, table=obj)
 
 
 def main(argv: list[str]) -> int:
     from bench._util import blender, report
 
     ap = argparse.ArgumentParser(prog="bench biscale_truth")
-    ap.add_argument("--quick", action="store_true", help="small bake, 100 x 100 tiles, 2 views (< 2 min)")
-    ap.add_argument("--modes", default="table,fit")
-    ap.add_argument("--gi", action="store_true", help="also full global illumination (8 bounces)")
+    ap.add_argument("--quick", action="store_true", help="2000 facets, 100 x 100 tiles, 2 views")
+    ap.add_argument("--fit", action="store_true", help="also the fitted closures (with and without inter-reflections)")
+    ap.add_argument("--gi", action="store_true", help="also full global illumination (16 bounces)")
     ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--tiles", default=",".join(TILES))
     ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
     args = ap.parse_args(argv)
     addon = blender()
     from scratch_materials.precompute.biscale import geometry
-    from scratch_materials.precompute.biscale import table as btable
-    from scratch_materials.precompute.biscale.effective import BiscaleTile
-    from scratch_materials.precompute.biscale.fit import fit_closures
-    from scratch_materials.scratch_addon import biscale_material, render
+    from scratch_materials.scratch_addon import render
 
     render.reset_scene()
     if args.figure:
         return figure(args.spp)
     views = VIEWS[:2] if args.quick else VIEWS
-    n = 100 if args.quick else 300
+    n = 100
     rows = []
-    for name, (factory, kw, mats) in TILES.items():
+    for name in args.tiles.split(","):
+        factory, kw, mats = TILES[name]
         tile = getattr(geometry, factory)(**kw)
-        res = btable.table_dir_res(mats)
-        opts = dict(n_facets=2000 if args.quick else 10000, dir_res=res)
-        t0 = time.perf_counter()
-        bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, **opts)
-        brdf = bt.effective_brdf(mats)
-        table = btable.tabulate_tile(bt, mats)     # the closure's finer table, from the facets
-        t_bake = time.perf_counter() - t0
-        fit = fit_closures(brdf)
-        for bounces in ([0, 8] if args.gi else [0]):
-            for mode in args.modes.split(","):
-                mat = biscale_material.make_biscale_material(fit, name=f"{name} {mode}", mode=mode, brdf=brdf,
-                                                           table=table if mode == "table" else None)
-                ex, bk, secs = render_pair(tile, mats, mat, [_view(*v) for v in views], n=n, spp=args.spp,
-                                           bounces=bounces)
-                err = np.abs(bk - ex).max(1) / ex.mean(1)
-                for v, e, a, b in zip(views, err, ex, bk):
-                    rows.append([name, mode, "direct" if bounces == 0 else "GI", f"{v[0]:.0f}/{v[1]:.0f}",
-                                 f"{100 * e:.1f} %", np.round(a, 4).tolist(), np.round(b, 4).tolist(),
-                                 res, f"{t_bake:.0f}"])
-                print(rows[-1], flush=True)
-    report("biscale_truth", ["tile", "mode", "light", "view θo/φo", "max rel. err", "explicit RGB", "baked RGB",
-                             "dir_res", "bake s"], rows,
+        variants, times, info = bake_variants(tile, mats, n_facets=2000 if args.quick else 10000, fit=args.fit)
+        bake_s = " / ".join(f"{k} {v:.1f}" for k, v in times.items())
+        for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
+            use = [k for k in variants if bounces or "inter-refl." not in k]
+            mats_bl = {k: _material(f"{name} {k}", *variants[k]) for k in use}
+            ex, bk, secs = render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=args.spp,
+                                      bounces=bounces)
+            for k in use:
+                err = np.abs(bk[k] - ex).max(1) / ex.mean(1)
+                for v, e, a, b in zip(views, err, ex, bk[k]):
+                    rows.append([name, k, "direct" if bounces == 0 else f"GI ({bounces})", f"{v[0]:.0f}/{v[1]:.0f}",
+                                 f"{100 * e:.1f} %", np.round(a, 4).tolist(), np.round(b, 4).tolist(), bake_s])
+                    print(rows[-1], flush=True)
+        print(name, "indirect estimate", info["estimate"], flush=True)
+    report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "explicit RGB", "baked RGB",
+                             "bake s"], rows,
            notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp, "
-                 "direction-coded world 0.5+0.5d + area lamp (NEE on)")
+                 "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
+                 f"{GI_BOUNCES} for the explicit tiles (the baked plane has nothing to bounce off). 'table': Wu's "
+                 "single-bounce effective BRDF (closure table, res 19); '+ inter-refl.': plus bounces >= 2 inside "
+                 "the periodic tile (precompute.biscale.interreflect; indirect table res 10 x 529 paths per view direction "
+                 "for diffuse tiles, res 19 x 144 for the GGX α 0.2 groove, interreflect.indirect_res)")
     del addon
     return 0
 
 
 def figure(spp: int = 64) -> int:
-    """Explicit tiles | exact table | fitted closures for the pyramid tile at θo = 35°, direct light,
-    96x96 px, saved as docs/img/biscale_truth.png."""
+    """Explicit tiles (full GI) | table + inter-reflections | Wu's single-bounce table, for the groove tile
+    (diffuse + glossy) at θo = 35°, 16 bounces, 96x96 px; saved as docs/img/biscale_truth.png."""
     import bpy
 
     from bench._util import ROOT, pyplot
     from scratch_materials.precompute.biscale import geometry
-    from scratch_materials.precompute.biscale.effective import BiscaleTile
-    from scratch_materials.scratch_addon import biscale_material, biscale_truth, render
+    from scratch_materials.scratch_addon import biscale_truth, render
 
-    factory, kw, mats = TILES["pyramid (diffuse)"]
+    name = "groove (diffuse + glossy)"
+    factory, kw, mats = TILES[name]
     tile = getattr(geometry, factory)(**kw)
-    from scratch_materials.precompute.biscale import table as btable
-    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10)
-    brdf = bt.effective_brdf(mats)
-    table = btable.tabulate_tile(bt, mats)     # the closure's finer table, from the facets
-    from scratch_materials.precompute.biscale.fit import fit_closures
-    fit = fit_closures(brdf)
+    variants, _, _ = bake_variants(tile, mats, n_facets=10000, dir_res=10)
     tmp = tempfile.mkdtemp()
     imgs = []
     scene = bpy.context.scene
-    for kind in ("explicit", "table", "fit"):
+    kinds = ("explicit", "table + inter-refl.", "table")
+    for kind in kinds:
         for o in list(scene.objects):
             bpy.data.objects.remove(o)
         biscale_truth.direction_world(scene, "first")
@@ -150,18 +197,21 @@ def figure(spp: int = 64) -> int:
         if kind == "explicit":
             biscale_truth.explicit_tile_plane(scene, tile, mats, n=100, size=4.0)
         else:
-            render.add_plane(scene, size=4.0, material=biscale_material.make_biscale_material(
-                fit, name=kind, mode=kind, brdf=brdf, table=table if kind == "table" else None))
+            render.add_plane(scene, size=4.0, material=_material(kind, *variants[kind]))
         render.add_camera(scene, location=tuple(5 * _view(35, 0)), target=(0, 0, 0), ortho_scale=1.2)
-        render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=0)
-        img, _ = render.render_array(scene, tmp, kind)
+        render.configure_cycles(scene, samples=spp, res=(96, 96), seed=7, osl=True, max_bounces=GI_BOUNCES)
+        img, _ = render.render_array(scene, tmp, "fig")
         imgs.append(img)
     plt = pyplot()
-    fig, ax = plt.subplots(1, 3, figsize=(9, 3.3))
-    for a, im, title in zip(ax, imgs, ("explicit 100x100 tiles", "exact table (closure)", "fitted closures")):
-        a.imshow(np.clip(im, 0, 1) ** (1 / 2.2))
-        a.set_title(f"{title}\nmean {im.mean():.4f}", fontsize=9)
+    fig, ax = plt.subplots(1, 3, figsize=(9, 3.8))
+    titles = ("explicit grooves, 16 bounces", "table + inter-reflections", "table, single bounce (Wu)")
+    ref = imgs[0].reshape(-1, 3).mean(0)
+    for a, im, title in zip(ax, imgs, titles):
+        a.imshow(np.clip(im / max(float(imgs[0].max()), 1e-6), 0, 1) ** (1 / 2.2))
+        m = im.reshape(-1, 3).mean(0)
+        a.set_title(f"{title}\nmean {m.mean():.3f} ({100 * (m.mean() / ref.mean() - 1):+.1f} %)", fontsize=9)
         a.axis("off")
+    fig.suptitle("bi-scale groove (diffuse floor, GGX α 0.2 walls), θo = 35°, full GI", fontsize=10)
     fig.tight_layout()
     out = ROOT / "docs" / "img" / "biscale_truth.png"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -195,7 +195,9 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     (OSL; the fitted closures elsewhere), ``dir_res`` by default from the sharpest small-scale material
     (``precompute.biscale.table.table_dir_res``); ``mode="fit"`` the fitted closure mixture, ``mode="reference"``
     the exact table importance-sampled in OSL where Cycles runs OSL on the CPU, the fitted closures elsewhere.
-    Returns (material, EffectiveBRDF, ClosureFit, info dict).  ``progress(fraction)`` is
+    ``interreflections`` ("auto" default, True, False; in ``opts``): light bouncing between the tile's
+    facets added to the table and the fit (``precompute.biscale.interreflect``; "auto": when the
+    first-bounce estimate exceeds 1 %).  Returns (material, EffectiveBRDF, ClosureFit, info dict).  ``progress(fraction)`` is
     called between steps.  The table's folder (``exr_dir``, default the cache's ``biscale`` folder) is
     checked before the bake; a failure leaves ``target``'s material slot as it was and no new material."""
     if mode not in MODES:
@@ -226,6 +228,8 @@ def bake(tile_obj, target=None, n_lobes: int = 4, progress=None, depsgraph=None,
     with transaction.new_datablocks():
         mat = make_biscale_material(fit, name=f"Bi-scale {tile_obj.name}", mode=mode, brdf=brdf, table=table)
         mat["biscale_table"] = info["exr"] or ""
+        mat["biscale_interreflections"] = bool(info["interreflections"])
+        mat["biscale_indirect_estimate"] = float(info["indirect_estimate"])
         if target is not None:
             if target.data.materials:
                 target.data.materials[target.active_material_index] = mat

@@ -117,6 +117,12 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
         ("REFERENCE", "Exact Reference", "The table importance-sampled in OSL through ray_portal_bsdf (CPU, no "
                                          "light sampling, turns on the scene's OSL backend; validation only)")],
         default="TABLE")
+    interreflections: bpy.props.EnumProperty(name="Inter-reflections", items=[
+        ("AUTO", "Automatic", "Light bouncing between the tile's facets (and its periodic neighbours) is added when a "
+                              "first-bounce estimate says it changes the material by more than 1 %"),
+        ("ON", "On", "Add the inter-reflected light (path traced inside the repeated tile; a few seconds)"),
+        ("OFF", "Off", "Single bounce only, as Wu et al. 2011 (darker than the real geometry)")],
+        default="AUTO")
 
     @classmethod
     def poll(cls, context):
@@ -140,12 +146,16 @@ class SCRATCH_OT_bake_biscale(bpy.types.Operator):
                 mat, brdf, fit, info = bmat.bake(tile_obj, target, n_lobes=self.n_lobes, progress=update,
                                                  depsgraph=context.evaluated_depsgraph_get(),
                                                  mode=self.mode.lower(), n_facets=self.n_facets,
+                                                 interreflections={"AUTO": "auto", "ON": True,
+                                                                   "OFF": False}[self.interreflections],
                                                  **({"dir_res": self.dir_res or 10}       # 0: automatic (table)
                                                     if self.dir_res or self.mode != "TABLE" else {}))
         except USER_ERRORS as exc:  # named as in the panel (Direction Resolution, not dir_res)
             return report_error(self, exc, op_labels(self))
         reused = " (tile reused)" if info["reused_tile"] else ""
-        self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{reused}")
+        inter = (f", inter-reflections {'on' if info['interreflections'] else 'off'} "
+                 f"(estimate {100 * info['indirect_estimate']:.1f} %)")
+        self.report({"INFO"}, f"{mat.name}: fit error rel. L1 {fit.rel_l1:.3f}, PSNR {fit.psnr:.1f} dB{inter}{reused}")
         if info["mode"] in ("reference", "table"):
             ui_utils.report_render_path(self, mat, context.scene)
         return {"FINISHED"}
@@ -169,6 +179,9 @@ class SCRATCH_PT_biscale(bpy.types.Panel):
                 layout.label(text=f"Exact table ({mat.get('tabulated_res', 0)}² directions, OSL); elsewhere the fitted closures")
             if mat.get("biscale_mode") == "reference":
                 layout.label(text="Exact reference (OSL, ray portal sampling); elsewhere the fitted closures")
+            if "biscale_interreflections" in mat:
+                layout.label(text=f"Inter-reflections {'on' if mat['biscale_interreflections'] else 'off'} "
+                                  f"(first-bounce estimate {100 * mat.get('biscale_indirect_estimate', 0):.1f} %)")
             if "biscale_fit_psnr" in mat:
                 layout.label(text=f"Fit: rel. L1 {mat.get('biscale_fit_rel_l1', 0):.3f}, "
                                   f"PSNR {mat.get('biscale_fit_psnr', 0):.1f} dB")

@@ -20,6 +20,7 @@ from ..tables import cache, files
 from .brdfs import material_lobes
 from .effective import BiscaleTile, check_options
 from .fit import fit_closures
+from .interreflect import check_mode, resample, tile_indirect
 from .table import tabulate_tile
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -88,18 +89,24 @@ def check_inputs(materials, n_lobes: int = 4, **opts) -> dict:
         raise ValueError("materials: expected a non-empty list of material dicts")
     for m in materials:
         material_lobes(m)
-    return check_options(opts, also_accepted=("n_lobes", "exr_dir", "progress", "color_weights"))
+    check_mode(opts.get("interreflections", "auto"))
+    return check_options(opts, also_accepted=("n_lobes", "exr_dir", "progress", "color_weights", "interreflections"))
 
 
 def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = None, progress=None,
-                closure_table: bool = False, **opts):
+                closure_table: bool = False, interreflections="auto", **opts):
     """Effective BRDF (eq. 8 via §3.4-3.7), its closure fit (``fit.fit_closures``) and the table saved as
     EXR in ``exr_dir`` (default: the cache folder's ``biscale``; checked before the bake, see ``table_dir``).
     ``materials``: small-scale BRDF dicts (``brdfs``), one per material index.  Returns ``(brdf, fit, info)``;
     ``info["exr"]`` is None when the table could not be written after all (the disk filled during the bake:
-    a ``CacheWarning``, the bake itself is kept)."""
+    a ``CacheWarning``, the bake itself is kept).
+
+    ``interreflections`` ("auto" | True | False): add the light inter-reflected inside the periodic tile
+    (``interreflect``, beyond Wu's single bounce) to the table and to what the closures are fitted to;
+    "auto" turns it on when the first-bounce estimate exceeds 1 % (``info["interreflections"]`` says
+    what was decided, ``info["indirect_estimate"]`` the estimate, ``info["seconds_indirect"]`` the cost)."""
     step = progress or (lambda f: None)
-    check_inputs(materials, n_lobes, **opts)
+    check_inputs(materials, n_lobes, interreflections=interreflections, **opts)
     exr_dir = table_dir(exr_dir)
     M = np.minimum(M, len(materials) - 1)
     tile, reused = get_tile(V, F, M, P, **opts)
@@ -111,6 +118,14 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
         t0 = time.perf_counter()
         table = tabulate_tile(tile, materials)
         t_table = time.perf_counter() - t0
+    ind, ind_info = tile_indirect(tile, materials, interreflections)
+    if ind is not None:                                  # bounces >= 2 inside the tile, on both grids
+        r = ind_info["res"]
+        brdf = type(brdf)(brdf.table + resample(ind, r, brdf.dir_res), brdf.dir_res,
+                          {**brdf.info, "interreflections": 1})
+        if table is not None:
+            table = type(table)(table.table + resample(ind, r, table.res), table.res, table.iso,
+                                {**table.info, "interreflections": 1})
     step(0.7)
     fit = fit_closures(brdf, n_lobes=n_lobes)
     step(0.9)
@@ -120,7 +135,9 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     except OSError as exc:
         warnings.warn(f"bi-scale table not written ({files.one_line(exc)})", cache.CacheWarning, stacklevel=2)
         exr = None
-    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials}
+    info = {"reused_tile": reused, "rel_l1": fit.rel_l1, "psnr": fit.psnr, "exr": exr, "materials": materials,
+            "interreflections": ind_info["interreflections"], "indirect_estimate": ind_info["estimate"],
+            "seconds_indirect": ind_info["seconds"]}
     if table is not None:
         info.update(table=table, seconds_table=t_table)
     return brdf, fit, info
