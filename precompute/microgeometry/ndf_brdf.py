@@ -21,6 +21,7 @@ table's own node spacing, so the mass is kept whatever the lobe width) times the
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import convolve1d
 
 from .. import validation
 from ..tables import tabulated_brdf as tb
@@ -34,17 +35,19 @@ MAX_HALF_RES = int((tb.MAX_FLOATS / 3) ** 0.25)
 
 
 def _disk_nodes(ndf: NDFTable, max_nodes: int = 129):
-    """(m (K, 3), weight D h² / mz (K,)) of the table's nodes inside the disk, downsampled by striding."""
+    """(m (K, 3), weight D h² / mz (K,)) of the table's nodes inside the disk, downsampled by striding.
+    Each kept node sums the fine nodes of the block *centred* on it (a block starting at the node would
+    shift the mass by half a block: a biased mean slope, Λ 0.017 instead of 0 at 69° for a sharp lobe)."""
     step = max(1, (ndf.resolution - 1) // (max_nodes - 1))
     X, Y = ndf.grid()
     t = ndf.table
-    # box-sum the table over step x step blocks so no mass is lost by striding
     if step > 1:
+        k = np.ones(step + 1 if step % 2 == 0 else step)
+        if step % 2 == 0:
+            k[0] = k[-1] = 0.5          # a fine node between two kept ones is shared
+        t = convolve1d(convolve1d(t, k, axis=0, mode="constant"), k, axis=1, mode="constant")
         R = (ndf.resolution - 1) // step * step + 1
-        t = t[:R, :R]
-        X, Y = X[:R:step, :R:step], Y[:R:step, :R:step]
-        pad = np.pad(t, ((0, step - 1), (0, step - 1)))
-        t = sum(pad[i::step, j::step][:X.shape[0], :X.shape[1]] for i in range(step) for j in range(step))
+        t, X, Y = t[:R:step, :R:step], X[:R:step, :R:step], Y[:R:step, :R:step]
     r2 = X ** 2 + Y ** 2
     inside = (r2 < 1 - 1e-9) & (t > 0)
     mz = np.sqrt(1 - r2[inside])
