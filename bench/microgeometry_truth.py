@@ -49,23 +49,19 @@ def surface():
     return hf, smoothed_heights(hf.heights, hf.pixel_um, SIGMA_UM)
 
 
-def _camera(scene, wo, frame):
-    from scratch_materials.scratch_addon import render
-
+def _camera(addon, scene, wo, frame):
     import bpy
+
     for c in [o for o in scene.objects if o.type == "CAMERA"]:
         bpy.data.objects.remove(c)
-    render.add_camera(scene, location=tuple(5.0 * wo), target=(0, 0, 0), ortho_scale=frame)
+    addon.render.add_camera(scene, location=tuple(5.0 * wo), target=(0, 0, 0), ortho_scale=frame)
 
 
-def moments(kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=64, tmp=None, images=None):
+def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=64, tmp=None, images=None):
     """{view: (albedo, E[dx²], E[dy²], E[dz²])} of the exit direction for ``kind`` in ("explicit",
     "table", "ellipsoid"); seconds of rendering.  ``materials``: {kind: () -> material} for the material kinds
-    (called after the scene reset, which removes unused datablocks)."""
-    import bpy
-
-    from scratch_materials.scratch_addon import biscale_truth, microgeometry_truth, render
-
+    (called after the scene reset, which removes unused datablocks).  ``addon``: the glue package."""
+    render, biscale_truth, microgeometry_truth = addon.render, addon.biscale_truth, addon.microgeometry_truth
     tmp = tmp or tempfile.mkdtemp()
     scene = render.reset_scene()
     frame = PERIODS * PERIOD_M
@@ -79,7 +75,7 @@ def moments(kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=
         render.add_plane(scene, size=frame / cmax * 1.2, material=materials[kind]())
     for v in views:
         wo = view_vector(*v)
-        _camera(scene, wo, frame)
+        _camera(addon, scene, wo, frame)
         render.configure_cycles(scene, samples=spp, res=(res, res), seed=1, osl=(kind == "table"), max_bounces=16)
         means = {}
         for world in ("white", "second"):
@@ -97,12 +93,9 @@ def moments(kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=
     return out, secs
 
 
-def build_materials(hf, tmp):
+def build_materials(addon, hf, tmp):
     """Factories of the table and ellipsoid materials of *Material from Height Field* for the scan ``hf``
     (saved as .npy); {kind: () -> material} and the seconds {kind: s} of the last build of each."""
-    from bench._util import blender
-
-    addon = blender(register=True)
     import importlib
 
     mg = importlib.import_module(addon.__name__ + ".microgeometry_ops")
@@ -121,7 +114,7 @@ def build_materials(hf, tmp):
 
 
 def main(argv: list[str]) -> int:
-    from bench._util import out_path, pyplot, report
+    from bench._util import blender, out_path, pyplot, report
 
     ap = argparse.ArgumentParser(prog="bench microgeometry_truth")
     ap.add_argument("--quick", action="store_true")
@@ -134,11 +127,16 @@ def main(argv: list[str]) -> int:
         args.spp, args.res = 8, 32
     tmp = tempfile.mkdtemp()
     hf, smooth = surface()
-    mats, t_build = build_materials(hf, tmp)
+    addon = blender(register=True)
+    import importlib
+
+    for name in ("biscale_truth", "microgeometry_truth"):
+        importlib.import_module(f"{addon.__name__}.{name}")
+    mats, t_build = build_materials(addon, hf, tmp)
     res, secs = {}, {}
     images = {} if args.figure else None
     for kind in ("explicit", "table", "ellipsoid"):
-        res[kind], secs[kind] = moments(kind, views, hf, smooth, mats, args.spp, args.res, tmp, images)
+        res[kind], secs[kind] = moments(addon, kind, views, hf, smooth, mats, args.spp, args.res, tmp, images)
         for v in views:
             print(kind, v, np.round(res[kind][v], 4), flush=True)
     rows = []

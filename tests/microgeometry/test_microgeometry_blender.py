@@ -260,8 +260,8 @@ def test_operator_ndf_table_material_renders_its_table(scene, mg, addon, tmp_pat
     microfacet BRDF (``ndf_brdf`` of the numpy pipeline's NDF, same numbers), rendered by Cycles (OSL)
     in a white furnace at normal view: the frame mean is the closure's expected weight from its numpy
     twin (``tabulated_brdf.sample``, 200k samples), within the pixel noise + 2 %, and not black.
-    A rough brushed surface (ellipsoid α 0.02 x 0.17): on sharper ones (α_x 0.005) the 16² table
-    cannot hold the NDF and its albedo exceeds 1 (measured 1.22; see the report)."""
+    A rough brushed surface (ellipsoid α 0.02 x 0.17); the table is a half-vector table zoomed to the NDF
+    (sharp NDFs: tests/microgeometry/test_ndf_brdf.py)."""
     import bpy
 
     from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
