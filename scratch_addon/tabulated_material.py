@@ -73,14 +73,17 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     return mat
 
 
-def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: int | None = None) -> bpy.types.Material:
+def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: int | None = None,
+                      svm_twin=None) -> bpy.types.Material:
     """Material of a measured NDF (Dong et al. 2015; ``precompute.microgeometry.ndf.NDFTable``, e.g. the
     filtered or Kirchhoff NDF of ``precompute.microgeometry.tables.compute_tables``) rendered as its own
     microfacet BRDF table (``precompute.microgeometry.ndf_brdf``: a half-vector table zoomed to the NDF's
     support), not its ellipsoid fit; reflectance ``F`` (RGB); ``res``: the half-vector grid side (default:
-    ``ndf_brdf.table_layout``).  The SVM/EEVEE twin is the Diffuse + Glossy fit of the table."""
+    ``ndf_brdf.table_layout``).  The SVM/EEVEE twin: ``svm_twin(tree) -> socket`` (Material from Height
+    Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
     from ..precompute.microgeometry import ndf_brdf
 
-    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, kind="microgeometry_table")
+    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, svm_twin=svm_twin,
+                                  kind="microgeometry_table")
     mat["microgeometry_ndf_kind"] = str(getattr(ndf, "kind", "tabulated"))
     return mat
