@@ -125,13 +125,13 @@ def ndf_brdf(ndf: NDFTable, res: int | None = None, F=1.0, sub: int = 3, extent:
     # exact cell averages of D over the h cells (solid-angle weighted), sub-sampled at the NDF's node spacing
     cell = 2.0 * Z / res
     sub_d = int(np.clip(np.ceil(2.0 * cell / nd.h), 4, 32))
-    st, dst = tb._cell_points(res, sub_d, Z)
+    st, dst = tb.cell_points(res, sub_d, Z)
     h = tb.hemi_oct_decode(st)
     dw = tb.jacobian(st) * dst
     D_st = (nd.eval(h) * dw).reshape(D_cells, -1).sum(1) / cell ** 2     # ∫_cell D dωh per unit (s, t) area
     # cell-averaged G2 / 4 per (h cell, ωo node): ρ = f cos θi cos θo J = F D J G2 / 4
     lam = _LambdaTable(nd)
-    st, _ = tb._cell_points(res, int(sub), Z)
+    st, _ = tb.cell_points(res, int(sub), Z)
     h = tb.hemi_oct_decode(st)
     wo_nodes = tb.direction_grid(res)
     lam_o = lam(wo_nodes)

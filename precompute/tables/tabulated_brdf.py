@@ -65,7 +65,7 @@ from .. import validation
 
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
-           "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect"]
+           "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points"]
 
 #: Largest ωi grid side.
 MAX_RES = 48
@@ -154,9 +154,9 @@ def hemisphere_midpoints(n_theta: int = 64, n_phi: int = 128):
     return wi, (1.0 / n_theta) * (2 * np.pi / n_phi)
 
 
-def _cell_points(res: int, sub: int, extent: float = 1.0):
-    """Midpoints (res² sub², 3-ready (s, t) (N, 2)) of sub x sub sub-cells of each res x res cell of
-    [-extent, extent]², cell-major (cell k = row*res + col, then its sub-cells), and their (s, t) area."""
+def cell_points(res: int, sub: int, extent: float = 1.0):
+    """(s, t) midpoints (res² sub², 2) of the sub x sub sub-cells of each res x res cell of [-extent, extent]²,
+    cell-major (cell k = row*res + col, then its sub-cells), and a sub-cell's (s, t) area."""
     h = 2.0 * extent / res
     c = -extent + (np.arange(res * sub) + 0.5) * (h / sub)
     S, T = np.meshgrid(c, c, indexing="ij")
@@ -250,7 +250,7 @@ class TabulatedBRDF:
         wo = _unit_rows("wo", wo)
         if self.half:     # quadrature over the h grid: sharp lobes are resolved where they are
             sub = max(2, int(np.ceil(n_theta / self.res)))
-            st, dst = _cell_points(self.res, sub, self.extent)
+            st, dst = cell_points(self.res, sub, self.extent)
             h = hemi_oct_decode(st)
             dwh = jacobian(st) * dst
             out = []
@@ -282,7 +282,7 @@ class TabulatedBRDF:
         if iso:
             validation.check_range("n_theta", n_theta, 2, 256)
         extent = validation.check_range("extent", extent, 1e-3, 1.0) if half else 1.0
-        st, _ = _cell_points(res, sub, extent)
+        st, _ = cell_points(res, sub, extent)
         x_all = hemi_oct_decode(st)                  # ωi, or h for half tables: (res² * sub², 3), cell-major
         n_o = int(n_theta) if iso else res * res
         wo_nodes = cls(np.zeros((res * res, n_o, 3)), res, bool(iso)).view_nodes()
@@ -358,7 +358,7 @@ def _half_cell_integrals(brdf: TabulatedBRDF, sub: int = 4):
     """Half tables: (∫_cell dωh (D,), ∫_cell [ωi above] 4 |ωo·h| ds dt (n_o, D)) per h cell and ωo node
     (ρ = f cos θi cos θo J carries the cosines and dωh/(ds dt)), midpoint rule on sub x sub sub-cells."""
     res, D = brdf.res, brdf.res * brdf.res
-    st, dst = _cell_points(res, sub, brdf.extent)
+    st, dst = cell_points(res, sub, brdf.extent)
     h = hemi_oct_decode(st)
     dwh = jacobian(st) * dst
     om = dwh.reshape(D, sub * sub).sum(1)
