@@ -1,19 +1,32 @@
-"""Whole-frame render cost of the tabulated-BRDF closure vs the SVM anisotropic Glossy (issue 16).
+"""Whole-frame render cost of the tabulated-BRDF closure vs the SVM anisotropic Glossy (issue 16 item 7).
 
-A plane fills a 96x96 frame (camera at 45°), studio world + an area lamp, adaptive sampling off,
-per-sample cost = (t(1 + S) - t(1)) / S, materials interleaved A/B/C... in one run, median of the
-repeats.  Tables: an anisotropic 10² x 10² table (a bi-scale bake's size) and an isotropic 32² x 32
-table (a MERL import's size); baselines: SVM Glossy (GGX, anisotropy 0.8) and the same Glossy node on
-the OSL backend (the table needs OSL; its own cost is the difference).
+Protocol (the one of ``bench/scratch_cost`` and ``bench/iridescence_cost``): an orthographic view filled by
+a UV sphere carrying the material (no background pixel), studio world + an area lamp (NEE on), adaptive
+sampling off, equal spp; per-sample cost = (t(N) - t(1)) / (N - 1) in CPU seconds of this (the render)
+process (user + system, all render threads: robust to other processes sharing the cores); materials
+interleaved A/B/C... in each round, medians over the rounds.
 
-    .venv/bin/python -m bench tabulated_cost [--quick]
+Rows: SVM anisotropic Glossy (the baseline), the same Glossy node on Cycles' OSL backend (the tables need
+OSL: the backend's own overhead), an anisotropic 10² x 10² table (a bi-scale bake's size), an isotropic
+32² x 32 table (an analytic BRDF), a MERL import (``merl_ops.material_from_merl`` of a MERL-format file
+written from an analytic BRDF: iso 32² x 32) and a Dong NDF table (``make_ndf_material`` of the filtered
+NDF of a brushed height field: the half-vector table of ``ndf_brdf``).
+
+    .venv/bin/python -m bench tabulated_cost [--quick] [--spp 33] [--rounds 5] [--res 96]
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import tempfile
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process (all render threads)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def main(argv: list[str]) -> int:
@@ -23,22 +36,26 @@ def main(argv: list[str]) -> int:
 
     ap = argparse.ArgumentParser(prog="bench tabulated_cost")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--spp", type=int, default=32)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--spp", type=int, default=33, help="N of (t(N) - t(1)) / (N - 1)")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--res", type=int, default=96)
     args = ap.parse_args(argv)
     if args.quick:
-        args.spp, args.repeats = 8, 1
+        args.spp, args.rounds, args.res = 5, 1, 48
     blender()
     import bpy
 
+    from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
+    from scratch_materials.precompute.microgeometry.ndf import filtered_ndf
+    from scratch_materials.precompute.tables import merl
     from scratch_materials.precompute.tables import tabulated_brdf as tb
-    from scratch_materials.scratch_addon import materials, render, tabulated_material
+    from scratch_materials.scratch_addon import materials, merl_ops, render, tabulated_material
 
     scene = render.reset_scene()
     render.studio_world(scene, 1.0)
     render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
-    plane = render.add_plane(scene, size=40.0)
-    render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), lens=50.0)
+    sphere = render.add_sphere(scene, radius=1.0)
+    render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)   # every pixel hits it
 
     def glossy(wi, wo):
         return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
@@ -52,29 +69,44 @@ def main(argv: list[str]) -> int:
     tan.direction_type = "UV_MAP"
     svm.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
     svm.node_tree.links.new(g.outputs["BSDF"], svm.node_tree.nodes["Material Output"].inputs["Surface"])
+    tmp = tempfile.mkdtemp()
+    merl_path = os.path.join(tmp, "ggx.binary")
+    merl.write_merl(merl_path, merl.tabulate(glossy))
+    hf = gaussian_surface((256, 256), 0.5, 0.3, (20.0, 1.5), seed=2)          # brushed, as the operator test
+    ndf = filtered_ndf(hf, sigma_um=1.0, resolution=513)
+    ndf_mat = tabulated_material.make_ndf_material(ndf, "NDF table", F=(0.9, 0.9, 0.9))
     cases = [("SVM aniso Glossy", svm, False), ("OSL backend, same Glossy", svm, True),
              ("table aniso 10²x10² (OSL)", tabulated_material.make_tabulated_material(
                  tb.TabulatedBRDF.from_function(glossy, 10), "aniso table"), True),
              ("table iso 32²x32 (OSL)", tabulated_material.make_tabulated_material(
-                 tb.TabulatedBRDF.from_function(glossy, 32, iso=True, n_theta=32), "iso table"), True)]
-    tmp = tempfile.mkdtemp()
+                 tb.TabulatedBRDF.from_function(glossy, 32, iso=True, n_theta=32), "iso table"), True),
+             ("MERL import iso 32²x32 (OSL)", merl_ops.material_from_merl(merl_path, "MERL ggx"), True),
+             (f"Dong NDF table {ndf_mat['tabulated_res']}² (OSL)", ndf_mat, True)]
     times = {name: [] for name, _, _ in cases}
-    for _ in range(args.repeats):
+    load0 = os.getloadavg()
+    for r in range(args.rounds):
         for name, mat, osl in cases:                   # interleaved
-            plane.data.materials.clear()
-            plane.data.materials.append(mat)
-            t = []
-            for spp in (1, 1 + args.spp):
-                render.configure_cycles(scene, samples=spp, res=(96, 96), seed=0, osl=osl)
-                _, s = render.render_array(scene, tmp, "cost")
-                t.append(s)
-            times[name].append((t[1] - t[0]) / args.spp)
+            sphere.data.materials.clear()
+            sphere.data.materials.append(mat)
+            t = {}
+            for spp in (0, 1, args.spp):     # 0: a 1-spp warm-up (shader compile, scene sync), discarded
+                render.configure_cycles(scene, samples=max(spp, 1), res=(args.res, args.res), seed=0, osl=osl)
+                c0 = cpu_seconds()
+                render.render_to_file(scene, os.path.join(tmp, f"cost_{spp}.exr"))
+                t[spp] = cpu_seconds() - c0
+            times[name].append((t[args.spp] - t[1]) / (args.spp - 1))
+            print(f"round {r}: {name:32s} {1e3 * times[name][-1]:8.2f} ms CPU / sample", flush=True)
+    load1 = os.getloadavg()
     base = statistics.median(times["SVM aniso Glossy"])
     osl_base = statistics.median(times["OSL backend, same Glossy"])
-    rows = [[name, f"{1e3 * statistics.median(v):.2f}", f"{statistics.median(v) / base:.2f}x",
-             f"{statistics.median(v) / osl_base:.2f}x"] for name, v in times.items()]
-    load = os.getloadavg()
-    report("tabulated_cost", ["material", "ms / sample (96x96 frame)", "vs SVM aniso Glossy", "vs OSL Glossy"], rows,
-           notes=f"{args.repeats} interleaved repeats, medians, (t(1+{args.spp}) - t(1)) / {args.spp}; "
-                 f"load average {load[0]:.1f} / {load[1]:.1f} on 2 cores")
+    rows = [[name, f"{1e3 * statistics.median(v):.1f}", f"{statistics.median(v) / base:.2f}x",
+             f"{statistics.median(v) / osl_base:.2f}x", " ".join(f"{x / b:.2f}" for x, b in
+                                                                  zip(v, times['SVM aniso Glossy']))]
+            for name, v in times.items()]
+    report("tabulated_cost", ["material", f"CPU ms / sample ({args.res}² frame)", "vs SVM aniso Glossy",
+                              "vs OSL Glossy", "per-round ratio vs SVM"], rows,
+           notes=f"whole frame: orthographic view filled by a UV sphere (radius 1, ortho scale 1.3), studio world + "
+                 f"area lamp, adaptive sampling off; per sample = (t({args.spp}) - t(1)) / {args.spp - 1} after a discarded "
+                 f"1-spp warm-up render, CPU time (user + sys) of the render process; {args.rounds} interleaved rounds, medians; load average "
+                 f"{load0[0]:.1f} at start, {load1[0]:.1f} at end, 2 cores")
     return 0

@@ -21,5 +21,5 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> 
     tables = const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
-                           ALPHA=tb.alpha),
+                           ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent)),
                       {"tabulated_brdf_tables.h": tables}, "osl/tabulated_brdf.py")

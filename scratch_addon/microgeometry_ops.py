@@ -39,6 +39,18 @@ def _finish_material(mat, kind: str) -> None:
         mat.cycles.use_bump_map_correction = False  # it would rotate the tilted lobe normals toward Ng
 
 
+def _average_node(tree, maps, rgba):
+    """The average-NDF node group (one ellipsoid lobe, §8) with the Glossy parameters ``maps``."""
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = mg_groups.ensure_average()
+    node.inputs["Color"].default_value = rgba
+    node.inputs["Roughness"].default_value = float(maps["roughness"])
+    node.inputs["Anisotropy"].default_value = float(maps["anisotropy"])
+    node.inputs["Rotation"].default_value = float(maps["rotation"])
+    node.inputs["Tilt"].default_value = tuple(float(v) for v in maps["tilt"])
+    return node
+
+
 def make_average_material(name: str, params, color=(0.8, 0.8, 0.8)):
     """Material with one ellipsoid lobe (§8) from 5 parameters ``(alpha_x, alpha_y, theta_x, theta_y, theta_z)``.
 
@@ -49,16 +61,9 @@ def make_average_material(name: str, params, color=(0.8, 0.8, 0.8)):
         maps, loss = conv.glossy_from_ellipsoid(np.asarray(params, dtype=np.float64))
     except ValueError as exc:
         raise ValueError(f"params: {exc}") from None
-    group = mg_groups.ensure_average()
     mat = materials.new_material(name)
     tree = mat.node_tree
-    node = tree.nodes.new("ShaderNodeGroup")
-    node.node_tree = group
-    node.inputs["Color"].default_value = rgba
-    node.inputs["Roughness"].default_value = float(maps["roughness"])
-    node.inputs["Anisotropy"].default_value = float(maps["anisotropy"])
-    node.inputs["Rotation"].default_value = float(maps["rotation"])
-    node.inputs["Tilt"].default_value = tuple(float(v) for v in maps["tilt"])
+    node = _average_node(tree, maps, rgba)
     tree.links.new(node.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
     _finish_material(mat, "microgeometry_average")
     mat["microgeometry_ellipsoid"] = [float(v) for v in maps["ellipsoid"]]
@@ -115,7 +120,7 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
     ``ndf_model`` (average NDF only): ``"ELLIPSOID"`` the §8 ellipsoid fit as one Glossy lobe (SVM, GPU,
     EEVEE), ``"TABLE"`` the measured NDF itself as a tabulated microfacet BRDF (issue 16:
     ``tabulated_material.make_ndf_material``; OSL closure with light sampling, its Diffuse + Glossy fit
-    elsewhere).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
+    elsewhere: the ellipsoid lobe).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
     None for the table).  A failure leaves no new material or image behind.
     """
     if ndf_model not in NDF_MODELS:
@@ -138,9 +143,12 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
             from ..precompute.microgeometry.ndf import NDFTable
             from .tabulated_material import make_ndf_material
 
-            rgb = materials.check_color("color", color)[:3]
+            rgba = materials.check_color("color", color)
+            maps, _ = conv.glossy_from_ellipsoid(np.asarray(tables["ellipsoid"], dtype=np.float64))
+            # SVM / GPU / EEVEE render the §8 ellipsoid lobe (the Ellipsoid Fit material), OSL the table
             mat, loss = make_ndf_material(NDFTable(tables["ndf"], kind=ndf_kind.lower()),
-                                          name or f"Microgeometry {stem} (NDF table)", F=rgb), None
+                                          name or f"Microgeometry {stem} (NDF table)", F=rgba[:3],
+                                          svm_twin=lambda tree: _average_node(tree, maps, rgba).outputs["BSDF"]), None
         else:
             mat, _, loss = make_average_material(name or f"Microgeometry {stem} (average)", tables["ellipsoid"], color)
         mat["microgeometry_source"] = os.path.basename(filepath)

@@ -65,19 +65,25 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     mat["scratch_addon_kind"] = kind
     mat["tabulated_res"] = int(brdf.res)
     mat["tabulated_iso"] = bool(brdf.iso)
+    if getattr(brdf, "half", False):
+        mat["tabulated_half_extent"] = float(brdf.extent)      # a half-vector table zoomed to its lobe
     if twin is not None:
         mat["tabulated_twin_rel_l1"] = float(twin["rel_l1"])
     mat.diffuse_color = (*[float(c) for c in np.clip(brdf.albedo(np.array([[0, 0, 1.0]]), 16, 32)[0], 0, 1)], 1.0)
     return mat
 
 
-def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: int = 16) -> bpy.types.Material:
+def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: int | None = None,
+                      svm_twin=None) -> bpy.types.Material:
     """Material of a measured NDF (Dong et al. 2015; ``precompute.microgeometry.ndf.NDFTable``, e.g. the
     filtered or Kirchhoff NDF of ``precompute.microgeometry.tables.compute_tables``) rendered as its own
-    microfacet BRDF table (``precompute.microgeometry.ndf_brdf``), not its ellipsoid fit; reflectance
-    ``F`` (RGB).  The SVM/EEVEE twin is the Diffuse + Glossy fit of the table."""
+    microfacet BRDF table (``precompute.microgeometry.ndf_brdf``: a half-vector table zoomed to the NDF's
+    support), not its ellipsoid fit; reflectance ``F`` (RGB); ``res``: the half-vector grid side (default:
+    ``ndf_brdf.table_layout``).  The SVM/EEVEE twin: ``svm_twin(tree) -> socket`` (Material from Height
+    Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
     from ..precompute.microgeometry import ndf_brdf
 
-    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, kind="microgeometry_table")
+    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, svm_twin=svm_twin,
+                                  kind="microgeometry_table")
     mat["microgeometry_ndf_kind"] = str(getattr(ndf, "kind", "tabulated"))
     return mat

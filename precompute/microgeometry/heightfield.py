@@ -31,7 +31,7 @@ from ..validation import check_seed
 
 __all__ = ["HeightField", "load_heightfield", "save_heightfield", "HeightFieldError", "INSTRUMENT_SUFFIXES",
            "as_heightfield", "detilt", "fit_plane", "Plane", "gaussian_surface", "spectral_slope_covariance",
-           "MAX_POINTS", "MAX_SIDE"]
+           "smoothed_heights", "MAX_POINTS", "MAX_SIDE"]
 
 INSTRUMENT_SUFFIXES = (".sur", ".plu", ".plux", ".datx", ".x3p", ".vk4", ".vk6", ".vk7", ".sdf", ".opd", ".nms", ".gwy")
 TEXT_SUFFIXES = (".txt", ".csv", ".asc", ".dat", ".xyz")
@@ -380,3 +380,24 @@ def spectral_slope_covariance(heights: np.ndarray, pixel_um: float, sigma_um: fl
     KX, KY = np.meshgrid(kx, ky)
     P = np.abs(F) ** 2 / (nx * ny) ** 2 * np.exp(-(sigma_um**2) * (KX**2 + KY**2))
     return np.array([[np.sum(KX * KX * P), np.sum(KX * KY * P)], [np.sum(KX * KY * P), np.sum(KY * KY * P)]])
+
+
+def smoothed_heights(heights, pixel_um: float, sigma_um: float) -> np.ndarray:
+    """A *periodic* height field (µm) convolved with the 2D Gaussian of std ``sigma_um`` (µm), via FFT.
+
+    The explicit surface the filtered NDF (§5.1) describes: the Gaussian-weighted least-squares plane
+    slope at a point equals the Gaussian-smoothed gradient (see :func:`spectral_slope_covariance`), so the
+    normals of this surface are the filtered NDF's normals (away from a finite scan's border, where the
+    filter's window is one-sided).  Used by the explicit-geometry ground truth of the NDF materials."""
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or not np.all(np.isfinite(h)):
+        raise HeightFieldError("heights: expected a finite 2D array (a periodic tile, no missing points)")
+    pixel_um, sigma_um = float(pixel_um), float(sigma_um)
+    if not (np.isfinite(pixel_um) and pixel_um > 0 and np.isfinite(sigma_um) and sigma_um >= 0):
+        raise HeightFieldError(f"pixel_um, sigma_um: expected a positive pixel size and a sigma >= 0, "
+                               f"got {pixel_um!r}, {sigma_um!r}")
+    ny, nx = h.shape
+    kx = 2 * np.pi * np.fft.rfftfreq(nx, pixel_um)
+    ky = 2 * np.pi * np.fft.fftfreq(ny, pixel_um)
+    gain = np.exp(-0.5 * sigma_um ** 2 * (ky[:, None] ** 2 + kx[None, :] ** 2))
+    return np.fft.irfft2(np.fft.rfft2(h) * gain, (ny, nx))

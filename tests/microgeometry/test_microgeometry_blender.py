@@ -260,8 +260,9 @@ def test_operator_ndf_table_material_renders_its_table(scene, mg, addon, tmp_pat
     microfacet BRDF (``ndf_brdf`` of the numpy pipeline's NDF, same numbers), rendered by Cycles (OSL)
     in a white furnace at normal view: the frame mean is the closure's expected weight from its numpy
     twin (``tabulated_brdf.sample``, 200k samples), within the pixel noise + 2 %, and not black.
-    A rough brushed surface (ellipsoid α 0.02 x 0.17): on sharper ones (α_x 0.005) the 16² table
-    cannot hold the NDF and its albedo exceeds 1 (measured 1.22; see the report)."""
+    A rough brushed surface (ellipsoid α 0.02 x 0.17); the table is a half-vector table zoomed to the NDF
+    (sharp NDFs: tests/microgeometry/test_ndf_brdf.py).  On SVM the material renders its twin, the §8
+    ellipsoid lobe: the same image as the Ellipsoid Fit material."""
     import bpy
 
     from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
@@ -300,3 +301,12 @@ def test_operator_ndf_table_material_renders_its_table(scene, mg, addon, tmp_pat
     lum = img.mean(-1)
     assert lum.mean() > 0.5
     assert abs(lum.mean() - expect) < _tolerance(lum) + 0.02 * expect, (lum.mean(), expect)
+    # SVM (GPU, EEVEE): the table material's twin is the §8 ellipsoid lobe, i.e. the Ellipsoid Fit material
+    r.studio_world(scene, 1.0)
+    r.configure_cycles(scene, samples=4, res=(16, 16), seed=1, osl=False)
+    svm_table, _ = r.render_array(scene, str(render_dir), "svm_table")
+    mat3, _ = mg.material_from_heightfield(str(path), 0.5, 1.0, ndf_model="ELLIPSOID", color=(1, 1, 1))
+    obj.data.materials[0] = mat3
+    svm_ellipsoid, _ = r.render_array(scene, str(render_dir), "svm_ellipsoid")
+    assert svm_table.mean() > 0.05
+    np.testing.assert_allclose(svm_table, svm_ellipsoid, atol=1e-4)

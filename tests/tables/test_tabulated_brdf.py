@@ -29,7 +29,11 @@ def aniso_brdf(wi, wo):
 @pytest.fixture(scope="module")
 def tables():
     return {"aniso": tb.TabulatedBRDF.from_function(aniso_brdf, 10),
-            "iso": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(), 12, iso=True, n_theta=12)}
+            "iso": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(), 12, iso=True, n_theta=12),
+            # half-vector tables (h grid zoomed to the lobe): a sharp anisotropic lobe, and an isotropic GGX
+            "half": tb.TabulatedBRDF.from_function(aniso_brdf, 10, sub=2, half=True, extent=0.8),
+            "iso_half": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(alpha=0.08, kd=(0, 0, 0)), 12, iso=True,
+                                                       n_theta=12, sub=3, half=True, extent=0.5)}
 
 
 def _unit(v):
@@ -75,7 +79,7 @@ def test_sampler_chi_square(tables, kind, wo):
     assert _chi2_pvalue(tables[kind], wo, wrong) < 1e-6
 
 
-@pytest.mark.parametrize("kind", ["aniso", "iso"])
+@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half"])
 def test_weight_is_eval_cos_over_pdf(tables, kind):
     """At a ωo node (one interpolation tap) every sample's weight equals eval · cos θi / (pdf · A) and
     its density equals ``pdf``: the shader's weight and the closure's target density agree."""
@@ -88,6 +92,10 @@ def test_weight_is_eval_cos_over_pdf(tables, kind):
     n = 3000
     WO = np.repeat(wo, n, 0)
     wi, m, W, p = tb.sample(T, WO, np.random.default_rng(1).random((n, 4)))
+    if B.half:                                              # targets below the horizon carry no weight
+        keep = wi[:, 2] > 0
+        assert keep.mean() > 0.5 and np.all(W[~keep] == 0)
+        wi, m, W, p, WO = wi[keep], m[keep], W[keep], p[keep], WO[keep]
     np.testing.assert_allclose(tb.pdf(T, wi, WO), p, rtol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(m, axis=1), 1, rtol=1e-12)
     np.testing.assert_allclose(np.sum(m * wi, 1), np.sum(m * WO, 1), atol=1e-12)   # m mirrors ωo into ωi
@@ -95,7 +103,7 @@ def test_weight_is_eval_cos_over_pdf(tables, kind):
     np.testing.assert_allclose(W, B.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-5, atol=1e-9)
 
 
-@pytest.mark.parametrize("kind", ["aniso", "iso"])
+@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half"])
 def test_furnace_mean_weight_is_albedo(tables, kind):
     """Mean of W · A over samples (what a white furnace renders, A the closure albedo) equals the
     directional albedo ∫ eval cos dωi of the table at off-node views.  100k samples; the relative
