@@ -160,7 +160,7 @@ def test_drag_in_the_ui_queues_one_update_with_the_last_value(addon, mat, monkey
     monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
     prepared = []
     real = addon.scratch_material.prepare
-    monkeypatch.setattr(addon.scratch_material, "prepare", lambda spec: prepared.append(spec) or real(spec))
+    monkeypatch.setattr(addon.scratch_material, "prepare", lambda spec, *a: prepared.append(spec) or real(spec, *a))
     before = _snapshot(mat)
     for v in np.linspace(0.1, 0.4, 12):
         mat.scratch.profile_value = float(v)
