@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 
 RES = 64   # small tables keep the module fast (a cache miss at 64 is ~0.1 s)
+#: the material the tests edit: Fig. 1d's 32 layers on iron, quartic 0.08 (pinned: the 'demo' preset may change)
+MAT = dict(resolution=RES, profile=("quartic", 0.08),
+           layers=dict(n_layers=32, theta_deg=360.0, length=0.3, width=3e-4, density=0.2))
 
 
 def _image_hash(img) -> str:
@@ -47,7 +50,7 @@ def _inputs(node) -> dict:
 
 @pytest.fixture
 def mat(addon, scene):
-    m = addon.api.make_scratched_material("demo", resolution=RES)
+    m = addon.api.make_scratched_material("demo", **MAT)
     assert addon.live.is_live(m)
     return m
 
@@ -194,7 +197,7 @@ def test_keyframed_density_renders_differently_on_two_frames(addon, scene, tmp_p
 
     render = addon.render
     scene = render.reset_scene()
-    m = addon.api.make_scratched_material("demo", resolution=RES)
+    m = addon.api.make_scratched_material("demo", **MAT)
     render.studio_world(scene)
     render.add_torus(scene, material=m)
     render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
@@ -360,7 +363,7 @@ def test_table_shape_change_updates_in_place_like_a_fresh_build(addon, mat):
 
 
 def test_theta_rank_growth_rebuilds(addon, scene):
-    m = addon.api.make_scratched_material("demo", resolution=RES, fresnel="aluminium", profile=("quartic", 0.2))
+    m = addon.api.make_scratched_material("demo", **dict(MAT, fresnel="aluminium", profile=("quartic", 0.2)))
     K0 = _rows_image(m, "Btheta").size[1]
     m.scratch.metal = "iron"
     assert _rows_image(m, "Btheta").size[1] > K0
