@@ -375,13 +375,14 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1):
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
     exact = np.einsum("smtc,qm->stcq", fm_b, basis_f)                                 # [S, T, C, 3]
     best = None
+    Ys = [Y[..., c][live] for c in range(C)]                                              # [L, T] per channel
+    Vts = [np.linalg.svd(sw[:, None] * Yc, full_matrices=False)[2] for Yc in Ys]       # one SVD per channel
     for K in range(1, kmax + 1):
         B = np.zeros((K, NT, C))
         coef = np.zeros((S, Mg, K, C))
         for c in range(C):
-            Yc = Y[..., c][live]                                                           # [L, T]
-            _, _, Vt = np.linalg.svd(sw[:, None] * Yc, full_matrices=False)
-            Bk = Vt[:K]
+            Yc = Ys[c]
+            Bk = Vts[c][:K]
             B[:, :, c] = Bk
             coef[live, :, c] = Yc @ Bk.T
         Yk = np.maximum(np.einsum("smkc,ktc->smtc", coef, B), 0.0)
