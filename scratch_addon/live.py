@@ -491,8 +491,17 @@ def _on_load(*_args):
     _job = None
 
 
+@bpy.app.handlers.persistent
+def _on_loaded(*_args):
+    """A file saved while a live edit showed its preview tables: the full tables now."""
+    for mat in bpy.data.materials:
+        if mat.get(scratch_material.PREVIEW_KEY) and mat.get("scratch_addon_kind") == "scratch_svbrdf" \
+                and hasattr(mat, "scratch"):
+            request(mat)
+
+
 _HANDLERS = (("frame_change_pre", _on_frame_pre), ("frame_change_post", _on_frame), ("undo_post", _on_undo), ("redo_post", _on_undo),
-             ("load_pre", _on_load))
+             ("load_pre", _on_load), ("load_post", _on_loaded))
 
 
 def register() -> None:

@@ -419,3 +419,18 @@ def test_undo_to_a_preview_state_brings_the_full_tables(addon, mat):
     assert addon.scratch_material.PREVIEW_KEY not in mat
     assert addon.live.last_update()["kind"] == "tables"   # recomputed (a cache hit), not skipped as up to date
     _same_tables_as_fresh(addon, mat)
+
+
+def test_a_file_saved_with_preview_tables_loads_with_the_full_ones(addon, mat, tmp_path):
+    import bpy
+
+    sm = addon.scratch_material
+    mat.scratch.profile_value = 0.21
+    want = _snapshot(mat)["C"]
+    mat[sm.PREVIEW_KEY] = 1                   # saved during the ~1 s a preview shows
+    mat.use_fake_user = True                  # (no object uses it: kept in the file anyway)
+    name, path = mat.name, str(tmp_path / "preview.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    m = bpy.data.materials[name]
+    assert sm.PREVIEW_KEY not in m and _snapshot(m)["C"] == want
