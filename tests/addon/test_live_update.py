@@ -434,3 +434,25 @@ def test_a_file_saved_with_preview_tables_loads_with_the_full_ones(addon, mat, t
     bpy.ops.wm.open_mainfile(filepath=path)
     m = bpy.data.materials[name]
     assert sm.PREVIEW_KEY not in m and _snapshot(m)["C"] == want
+
+
+def test_failed_shape_change_leaves_the_material_as_it_was(addon, mat, monkeypatch):
+    """Nothing lost (scratch_addon.transaction): an in-place update that changes the tables' shape and fails at
+    its last step leaves the images, the row constants, the shader and the nodes as they were, and no new
+    table image behind."""
+    import bpy
+
+    sm = addon.scratch_material
+    before, rows = _snapshot(mat), _row_constants(mat)
+    images = {img.name for img in bpy.data.images}
+
+    def broken(*_a, **_k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(sm, "_store_params", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        with addon.live.batch():
+            mat.scratch.metal = "aluminium"
+            mat.scratch.profile_value = 0.15      # RES 64: S 87 -> 83, rank 8 -> 5
+    assert _snapshot(mat) == before and _row_constants(mat) == rows
+    assert {img.name for img in bpy.data.images} == images
