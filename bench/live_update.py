@@ -1,16 +1,20 @@
 """Live look-dev (issue 18): property change -> updated material, and the render cost of live sockets.
 
-Timing: the default preset material ("demo": 4 layers, table lobes, resolution 256, OSL + SVM twin) in a
+Timing: Fig. 1d's 32 layers on iron, quartic 0.08, density 0.2 (table lobes, resolution 256, OSL + SVM + EEVEE twins) in a
 fresh table cache; each row sets one ``material.scratch`` setting (headless: applied synchronously, the
 same code the UI runs after its debounce) and times until the material is updated:
 
   socket         density / tint / base colour: one socket write (no table, no shader text)
   table miss     profile value or metal never seen: tables computed (cache miss), OSL source compiled, table
-                 images rewritten in place
+                 images repointed in place (also when the adaptive tables change shape: node count S, θo rank)
+  forced rebuild the same kind of miss applied as a full rebuild (``sync(force=True)``: what a shape change
+                 cost before), interleaved with the in-place rows
+  preview        the worker's quick tables of a miss (``prepare(spec, "preview")``), shown first in the UI
   table hit      back to a value seen before: tables from the cache, bytecode reused
   structure      layer count: full rebuild (api.make_scratched_material, atomic), tables from the cache
-  UI block miss  in the UI the tables compute in a worker thread: the main thread is blocked only while the
-                 result is applied (measured by driving ``live._tick`` with timers simulated)
+  UI miss        in the UI the tables compute in a worker thread: the main thread is blocked only while a
+                 result is applied (measured by driving ``live._tick`` with timers simulated; main-thread CPU
+                 by ``time.thread_time``); change -> preview shown, change -> full tables shown
 
 Cost (``--cost``): whole-frame render A/B of the same material built with the "Scratch Controls" node
 (length, width, density, tint as sockets) and with those values compiled in as constants (``LIVE_CONTROLS =
@@ -50,33 +54,45 @@ def _timed(fn) -> float:
     return time.perf_counter() - t0
 
 
-def _row(label, cache, times) -> tuple:
-    cpu = _CPU[-len(times):]
+def _row(label, cache, times, cpu=None) -> tuple:
+    cpu = _CPU[-len(times):] if cpu is None else cpu
     return (label, cache, statistics.median(times), statistics.median(cpu), len(times))
 
 
-def _ui_block(live, mat, prop, value) -> tuple[float, float]:
-    """(longest main-thread block, change -> updated material) for one edit in UI mode (worker thread)."""
+def _ui_block(live, mat, prop, value) -> dict:
+    """One edit in UI mode (worker thread, timers simulated): longest main-thread block (wall, and CPU of the
+    main thread), seconds from the change to the preview shown and to the full tables shown."""
     real_bg = live._background
     live._background = lambda: False
     import bpy
 
+    from scratch_materials.scratch_addon import scratch_material
+
     reg, isreg = bpy.app.timers.register, bpy.app.timers.is_registered
     bpy.app.timers.register = lambda *a, **k: None
     bpy.app.timers.is_registered = lambda *a, **k: True
+    out = {"block": 0.0, "block_cpu": 0.0, "preview": None, "full": None}
     try:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         setattr(mat.scratch, prop, value)
-        block = time.perf_counter() - t0
+        out["block"], out["block_cpu"] = time.perf_counter() - t0, time.thread_time() - c0
         live._pending[mat.name] = 0.0          # the debounce is over
         while True:
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.thread_time()
+            last = live.last_update()
             again = live._tick()
-            block = max(block, time.perf_counter() - t1)
+            out["block"] = max(out["block"], time.perf_counter() - t1)
+            out["block_cpu"] = max(out["block_cpu"], time.thread_time() - c1)
+            if live.last_update() is not last:
+                when = time.perf_counter() - t0
+                if mat.get(scratch_material.PREVIEW_KEY):
+                    out["preview"] = when
+                else:
+                    out["full"] = when
             if again is None:
                 break
-            time.sleep(0.01)
-        return block, time.perf_counter() - t0
+            time.sleep(0.005)
+        return out
     finally:
         live._background = real_bg
         bpy.app.timers.register, bpy.app.timers.is_registered = reg, isreg
@@ -85,37 +101,56 @@ def _ui_block(live, mat, prop, value) -> tuple[float, float]:
 def timing(repeats: int) -> list:
     api, live, render, scratch_material = _setup()
     render.reset_scene()
-    mat = api.make_scratched_material("demo")
+    # the 'demo' preset of issue 18's measurements (pinned: the preset itself is the README image's material)
+    mat = api.make_scratched_material("demo", profile=("quartic", 0.08),
+                                      layers=dict(n_layers=32, theta_deg=360.0, length=0.3, width=3e-4, density=0.2))
     rows = []
     s = mat.scratch
     for label, prop, values in (("socket: density", "density", [0.3, 0.5]),
                                 ("socket: tint", "tint", [(1, 0.8, 0.6), (1, 1, 1)])):
         ts = [_timed(lambda v=v: setattr(s, prop, v)) for _ in range(repeats) for v in values]
         rows.append(_row(label, "-", ts))
-    misses = []
-    for i in range(repeats):
+    misses, forced, c_miss, c_forced = [], [], [], []
+    for i in range(repeats):                              # A/B interleaved: in place vs forced rebuild
         v = 0.06 + 0.013 * (i + 1)                       # never seen: cache miss
         misses.append(_timed(lambda v=v: setattr(s, "profile_value", v)))
-        assert live.last_update()["kind"] == "tables"
-    rows.append(_row("table: profile value", "miss", misses))
-    hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.05] + [0.06 + 0.013 * (i + 1)
-                                                                               for i in range(repeats)]]
+        c_miss.append(_CPU[-1])
+        assert live.last_update()["kind"] == "tables", live.last_update()
+        with live.suspended():
+            s.profile_value = 0.0605 + 0.013 * (i + 1)
+        forced.append(_timed(lambda: live.sync(mat, force=True)))
+        c_forced.append(_CPU[-1])
+    rows.append(_row("table: profile value (in place)", "miss", misses, c_miss))
+    rows.append(_row("table: profile value, forced rebuild (old path of a shape change)", "miss", forced, c_forced))
+    hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.06 + 0.013 * (i + 1)
+                                                                         for i in range(repeats)]]
     rows.append(_row("table: profile value", "hit", hits))
-    rows.append(_row("table: metal", "miss", [_timed(lambda m=m: setattr(s, "metal", m)) for m in ("gold", "copper")]))
+    metal_miss = []
+    for m in ("gold", "copper", "silver", "aluminium"):
+        metal_miss.append(_timed(lambda m=m: setattr(s, "metal", m)))
+        assert live.last_update()["kind"] in ("tables", "rebuild")
+    rows.append(_row("table: metal (in place; a larger θo rank rebuilds)", "miss", metal_miss))
+    spec = live._spec(mat)
+    import dataclasses
+
+    from scratch_materials.precompute.scratch import profiles
+
+    pv = [_timed(lambda i=i: scratch_material.prepare(dataclasses.replace(spec, profile=profiles.quartic(
+        0.0517 + 0.011 * i)), "preview")) for i in range(repeats)]
+    rows.append(_row("preview tables of a profile miss (worker, prepare)", "miss", pv))
     rows.append(_row("table: metal", "hit", [_timed(lambda m=m: setattr(s, "metal", m))
                                              for m in ("iron", "gold", "copper", "iron")]))
     rows.append(_row("layers: seed (in place)", "hit", [_timed(lambda n=n: setattr(s, "seed", n)) for n in (1, 2, 0)]))
+    ui = [_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i) for i in range(max(2, repeats // 2))]
+    med = lambda k: statistics.median([u[k] for u in ui if u[k] is not None])  # noqa: E731
+    rows.append(("UI, worker thread: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
+                 len(ui)))
+    rows.append(("UI, worker thread: profile value, longest main-thread block (main-thread CPU)", "miss", "-",
+                 med("block_cpu"), len(ui)))
+    rows.append(("UI, worker thread: profile value, change -> preview shown", "miss", med("preview"), "-", len(ui)))
+    rows.append(("UI, worker thread: profile value, change -> full tables shown", "miss", med("full"), "-", len(ui)))
     rows.append(_row("structure: layer count (rebuild)", "hit", [_timed(lambda n=n: setattr(s, "n_layers", n))
-                                                                 for n in (5, 4)]))
-    blocks, totals = [], []
-    for i in range(max(1, repeats // 2)):
-        b, t = _ui_block(live, mat, "profile_value", 0.031 + 0.007 * i)
-        blocks.append(b)
-        totals.append(t)
-    rows.append(("UI, worker thread: profile value, longest main-thread block", "miss", statistics.median(blocks), "-",
-                 len(blocks)))
-    rows.append(("UI, worker thread: profile value, change -> updated", "miss", statistics.median(totals), "-",
-                 len(totals)))
+                                                                 for n in (31, 32)]))
     return rows
 
 
@@ -178,6 +213,7 @@ def main(argv: list[str]) -> int:
         return 0
     rows = timing(a.repeats)
     report("live_update", ["edit", "cache", "wall s (median)", "CPU s (median)", "n"], rows,
-           f"'demo' preset (4 layers, table lobes, resolution 256, OSL + SVM twin); headless, synchronous; "
+           f"32 layers (Fig. 1d), iron, quartic 0.08, table lobes, resolution 256, OSL + SVM + EEVEE twins; headless, synchronous "
+           f"except the UI rows; CPU s = process CPU (all threads) of the edit; "
            f"load average {load[0]:.1f} on {os.cpu_count()} cores (shared machine: noisy).")
     return 0

@@ -30,6 +30,9 @@ from ..precompute.cycles.glossy import glossy_node_params
 _PI = math.pi
 #: custom property marking the table lobe's Glossy node
 TABLE_GLOSSY = "scratch_table_glossy"
+#: tag of the Math node mapping a φo node index to its table row ((k + 0.5) / S): an in-place table update with
+#: another node count S rewrites its constants (``scratch_addon.scratch_material.apply_tables``)
+TABLE_ROWS = "scratch_table_rows"
 #: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
 LAYER_CONST = "scratch_layer_const"
 #: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
@@ -428,6 +431,7 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     k, pa, pb = g.separate(fetch(imgs["N"], cell, G, 0.5).outputs["Color"])
     up = g.math("LESS_THAN", g.math("MULTIPLY", h_slice, g.math("SUBTRACT", pb, pa)), g.math("SUBTRACT", phi_o, pa))
     row = g.math("MULTIPLY_ADD", g.math("ADD", k, up), 1.0 / S, 0.5 / S)
+    row.node[TABLE_ROWS] = True
     uh = g.math("MULTIPLY", h, float(M))
     j = g.math("FLOOR", uh)
     if cost_off & 4:  # bench: no alias lookup (the bin straight from h)

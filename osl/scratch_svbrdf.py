@@ -299,11 +299,11 @@ def source(params: ScratchParams, brdf=None, lobe_data=None, voronoi_int2: bool 
     """The specialised OSL source of a scratch material (``precompute.scratch.material.validate``d
     ``params``; tables computed or taken from the cache unless given).  ``voronoi_int2``: the running
     Blender's Voronoi hash API (>= 5.0: True)."""
-    if brdf is None:
-        brdf = material.brdf_table(params)
     layers = params.layers
     theta_k, xi_k = layers_mod.layer_transforms(layers) if layers is not None else (None, None)
     layer_kw = {} if layers is None else dict(theta_k=theta_k, xi_k=xi_k, coverage=layers_mod.coverage_table()[1])
+    if brdf is None and (params.mode == "reference" or (lobe_data is None and params.lobe_shape != "table")):
+        brdf = material.brdf_table(params)   # table lobes render from view slices, not from this table
     if params.mode == "reference":
         return generate_reference(ReferenceSpec(
             rho_m=brdf.rho_m, rho0=brdf.rho0, gamma=brdf.gamma, layers=layers,

@@ -14,7 +14,10 @@ Three kinds of panel value (``material.scratch``):
 
 In the UI, table and structure edits are debounced (``DEBOUNCE_S`` after the last change: a drag
 queues one update with the last value), the tables are computed in a worker thread (numpy releases the
-GIL: the UI stays responsive during a cache miss) and applied on the main thread.  Headless
+GIL: the UI stays responsive during a cache miss) and applied on the main thread.  On a cache miss of
+table lobes the worker first computes quick *preview* tables (``precompute.scratch.lobes.table_lobes``,
+quality "preview": about a quarter of the cost, moments within 3 %), which are applied at once, then the
+full tables, which replace them (the material carries ``scratch_material.PREVIEW_KEY`` in between).  Headless
 (``blender -b``, tests) ``bpy.app.timers`` never fire, so edits apply synchronously, except inside
 ``batch()`` which applies once at its end.  ``flush()`` applies whatever is pending.
 
@@ -50,7 +53,7 @@ _batch: list | None = None   # inside batch(): names of materials to sync at its
 _pending: dict = {}     # material name -> due time (UI debounce)
 _calls: dict = {}       # key -> (due time, function): other debounced rebuilds (call_debounced)
 _worker = None
-_job = None             # (material name, table key, future) of the running table computation
+_job = None             # (material name, table key, future, quality) of the running table computation
 _stats = {"last": None}  # the last applied update: kind and seconds (bench/live_update.py)
 
 
@@ -167,7 +170,8 @@ def sync(material, force: bool = False, prepared: dict | None = None) -> str:
     spec = scratch_material.validate(**params)
     table_key, _structure = scratch_material.live_keys(spec, material.name)
     kind = "none"
-    if not force and material.get(scratch_material.TABLE_KEY) == table_key and is_live(material):
+    if (not force and material.get(scratch_material.TABLE_KEY) == table_key and is_live(material)
+            and not material.get(scratch_material.PREVIEW_KEY)):
         kind = "sockets" if _sockets_differ(material) else "none"
         write_sockets(material)
     else:
@@ -266,13 +270,15 @@ def flush() -> None:
     global _job
     _run_calls(None)
     if _job is not None:
-        name, _key, future = _job
+        name, _key, future, _quality = _job
         _job = None
         mat = bpy.data.materials.get(name)
         try:
             prepared = future.result()
         except Exception:  # noqa: BLE001 - recomputed (and reported) by sync below
             prepared = None
+        if prepared is not None and prepared.get("quality") == "preview":
+            prepared = None   # flush wants the final material: the full tables, now
         if mat is not None:
             _pending.setdefault(name, 0.0)
             _apply(mat, prepared)
@@ -300,8 +306,24 @@ def _redraw() -> None:
                 area.tag_redraw()
 
 
-def _prepare(spec):
-    return scratch_material.prepare(spec)
+def _prepare(spec, quality: str = "full"):
+    return scratch_material.prepare(spec, quality)
+
+
+def _prepare_first(spec):
+    """The worker's first tables for an edit: the full ones on a cache hit, else the quick preview."""
+    if scratch_material.has_preview(spec) and not scratch_material.tables_cached(spec):
+        return _prepare(spec, "preview")
+    return _prepare(spec)
+
+
+def _start(name: str, key: str, spec, quality: str | None = None) -> None:
+    """Submit the table computation of material ``name`` (``quality`` None: preview first on a miss)."""
+    global _job, _worker
+    if _worker is None:
+        _worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="scratch_live")
+    future = _worker.submit(_prepare_first, spec) if quality is None else _worker.submit(_prepare, spec, quality)
+    _job = (name, key, future, quality)
 
 
 def _tick():
@@ -310,7 +332,7 @@ def _tick():
     now = time.perf_counter()
     _run_calls(now)
     if _job is not None:
-        name, key, future = _job
+        name, key, future, _quality = _job
         if not future.done():
             return 0.05
         _job = None
@@ -321,11 +343,14 @@ def _tick():
             except Exception:  # noqa: BLE001 - sync recomputes and reports it
                 prepared = None
             try:
-                current = scratch_material.live_keys(_spec(mat), mat.name)[0]
+                spec = _spec(mat)
+                current = scratch_material.live_keys(spec, mat.name)[0]
             except Exception:  # noqa: BLE001
                 current = None
-            if current == key:
+            if current == key and name not in _pending:
                 _apply(mat, prepared)
+                if prepared is not None and prepared.get("quality") == "preview":
+                    _start(name, key, spec, "full")   # the preview shows: now the full tables
             else:
                 _pending.setdefault(name, now)   # changed again meanwhile: compute the newest
     due = [n for n, t in _pending.items() if t <= now]
@@ -341,12 +366,11 @@ def _tick():
                 _report(mat, exc)
                 _redraw()
             else:
-                if mat.get(scratch_material.TABLE_KEY) == key and is_live(mat):
+                if (mat.get(scratch_material.TABLE_KEY) == key and is_live(mat)
+                        and not mat.get(scratch_material.PREVIEW_KEY)):
                     _apply(mat, None)   # back to the built tables: sockets only
                 else:
-                    if _worker is None:
-                        _worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="scratch_live")
-                    _job = (name, key, _worker.submit(_prepare, spec))
+                    _start(name, key, spec)
     if _job is not None:
         return 0.05
     dues = list(_pending.values()) + [due for due, _fn in _calls.values()]
@@ -453,7 +477,8 @@ def _on_undo(*_args):
             key = scratch_material.live_keys(_spec(mat), mat.name)[0]
         except Exception:  # noqa: BLE001
             continue
-        if SETTINGS_KEY in mat and (mat.get(SETTINGS_KEY) != key or (is_live(mat) and _sockets_differ(mat))):
+        if SETTINGS_KEY in mat and (mat.get(SETTINGS_KEY) != key or mat.get(scratch_material.PREVIEW_KEY)
+                                    or (is_live(mat) and _sockets_differ(mat))):
             request(mat)
 
 
@@ -466,8 +491,17 @@ def _on_load(*_args):
     _job = None
 
 
+@bpy.app.handlers.persistent
+def _on_loaded(*_args):
+    """A file saved while a live edit showed its preview tables: the full tables now."""
+    for mat in bpy.data.materials:
+        if mat.get(scratch_material.PREVIEW_KEY) and mat.get("scratch_addon_kind") == "scratch_svbrdf" \
+                and hasattr(mat, "scratch"):
+            request(mat)
+
+
 _HANDLERS = (("frame_change_pre", _on_frame_pre), ("frame_change_post", _on_frame), ("undo_post", _on_undo), ("redo_post", _on_undo),
-             ("load_pre", _on_load))
+             ("load_pre", _on_load), ("load_post", _on_loaded))
 
 
 def register() -> None:

@@ -20,7 +20,7 @@ from ..precompute.cycles.glossy import glossy_node_params
 from ..osl import scratch_svbrdf
 from ..precompute.scratch import layers as scratch_layers
 from ..precompute.scratch.material import (BACKENDS, BASE_TYPES, LOBE_SHAPES, MODES, ScratchParams,  # noqa: F401
-                                           fit_error, tables, validate)
+                                           fit_error, has_preview, tables, tables_cached, validate)
 from ..precompute.validation import check_range
 from . import osl_compile, render_paths, transaction
 
@@ -290,6 +290,7 @@ def _finish(material, tree, out, surfaces: dict, params: ScratchParams, lobe_dat
 def _store_params(material, params: ScratchParams, lobe_data) -> None:
     """The material's record of what it was built from (custom properties)."""
     material["scratch_addon_kind"] = "scratch_svbrdf"
+    material.pop(PREVIEW_KEY, None)
     if lobe_data is not None:
         material["scratch_addon_fit_error"] = fit_error(lobe_data)
     material[TABLE_KEY], material[STRUCTURE_KEY] = live_keys(params, material.name)
@@ -304,6 +305,8 @@ def _store_params(material, params: ScratchParams, lobe_data) -> None:
 # --- live updates (scratch_addon.live) ----------------------------------------------------------------
 #: Material custom properties: what the tables / the node-tree structure were built from.
 TABLE_KEY = "scratch_live_table_key"
+#: set while the material shows a live edit's preview tables (the full ones are on their way)
+PREVIEW_KEY = "scratch_live_preview"
 STRUCTURE_KEY = "scratch_live_structure_key"
 
 
@@ -380,6 +383,47 @@ def _set_source(node, src: str) -> None:
     _remember_bytecode(src, node)
 
 
+#: table images with one row per φo node (their row count follows the adaptive node count S in place)
+_ROW_IMAGES = tuple(scratch_svm.TABLE_IMAGE_PREFIX + k for k in ("A", "C", "Y"))
+
+
+def _layer_transforms_change(material, lp) -> bool:
+    """True unless ``material`` was built / updated with the same layer rotations and offsets as ``lp`` (they
+    depend on the layer count, the spread Θ and the seed only: ``layers.layer_transforms``)."""
+    try:
+        old = json.loads(material["scratch_addon_params"])["layers"]
+        return any(old[k] != v for k, v in lp.cache_key().items() if k in ("n_layers", "theta_deg", "seed"))
+    except (KeyError, TypeError, ValueError):
+        return True
+
+
+def _prefix(img) -> str:
+    return img.name.rsplit(" ", 1)[0]
+
+
+def _pad_rank(svm_lobes: dict, table_nodes, truncate: bool = False) -> dict:
+    """``svm_lobes`` with its θo basis zero-padded to the rank the node tree was built for (its ``Btheta``
+    image's rows: one fetch pair per basis function), so a material whose new tables need fewer basis
+    functions updates in place; the padded functions add exactly 0.  A higher rank changes the graph
+    (``NeedsRebuild``), except for ``truncate`` (preview tables: their last functions are dropped)."""
+    basis = svm_lobes.get("basis")
+    built = next((n.image.size[1] for n in table_nodes if _prefix(n.image) == scratch_svm.TABLE_IMAGE_PREFIX + "Btheta"),
+                 None)
+    if basis is None or built is None or basis.shape[0] == built:
+        return svm_lobes
+    K = int(basis.shape[0])
+    if K > built and truncate:   # the SVD basis is ordered: the best rank-``built`` part of a preview
+        return dict(svm_lobes, coef=np.asarray(svm_lobes["coef"])[:, :, :built], basis=basis[:built])
+    if K > built:
+        raise NeedsRebuild(f"the θo basis grows from {built} to {K} functions")
+    coef = np.asarray(svm_lobes["coef"])
+    pad_c = np.zeros(coef.shape[:2] + (built,) + coef.shape[3:])
+    pad_c[:, :, :K] = coef
+    pad_b = np.zeros((built,) + basis.shape[1:])
+    pad_b[:K] = basis
+    return dict(svm_lobes, coef=pad_c, basis=pad_b)
+
+
 class NeedsRebuild(Exception):
     """``apply_tables`` cannot update this material in place (its node tree has another structure)."""
 
@@ -395,10 +439,12 @@ def scratch_script(material):
     return next((n for n in material.node_tree.nodes if ours(n)), None)
 
 
-def prepare(params: ScratchParams) -> dict:
+def prepare(params: ScratchParams, quality: str = "full") -> dict:
     """Everything ``build`` / ``apply_tables`` compute before touching a material (no bpy datablocks: runs in a
-    worker thread): the tables (cached) and the OSL source."""
-    tab = tables(params)
+    worker thread): the tables (cached) and the OSL source.  ``quality`` "preview": the quick tables a live
+    edit shows first (``precompute.scratch.lobes.table_lobes``); ``apply_tables`` marks the material
+    (``PREVIEW_KEY``) until the full ones replace them."""
+    tab = tables(params, quality)
     src = None
     if params.backend != "svm":
         lp = params.layers
@@ -416,7 +462,7 @@ def prepare(params: ScratchParams) -> dict:
                 if len(_SOURCES) > 32:
                     _SOURCES.pop(next(iter(_SOURCES)))
                 _SOURCES[key] = src
-    return dict(tab, src=src)
+    return dict(tab, src=src, quality=quality)
 
 
 #: generated OSL sources by settings (a value dragged back generates no second time)
@@ -460,13 +506,22 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         if script is not None:
             _set_source(script, prepared["src"])
         # new (content-hashed, shared) images; the nodes are repointed, no image another material uses is rewritten
+        preview = prepared.get("quality") == "preview"
+        svm_lobes = _pad_rank(svm_lobes, table_nodes, truncate=preview)
         new = {img.name.rsplit(" ", 1)[0]: img for img in scratch_svm.table_images(material.name, svm_lobes).values()}
+        rows = [n for n in tree.nodes if n.get(scratch_svm.TABLE_ROWS)]
         for node in table_nodes:
             img = new.get(node.image.name.rsplit(" ", 1)[0])
-            if img is None or tuple(img.size) != tuple(node.image.size):
-                raise NeedsRebuild("the table images change size")
+            if img is None or img.size[0] != node.image.size[0]:
+                raise NeedsRebuild("the table images change width")
+            if img.size[1] != node.image.size[1] and (not rows or _prefix(img) not in _ROW_IMAGES):
+                raise NeedsRebuild("the table images change height")
         for node in table_nodes:
             node.image = new[node.image.name.rsplit(" ", 1)[0]]
+        S = int(np.asarray(svm_lobes["cdf"]).shape[0])   # adaptive φo nodes: rows of the A, C, Y images
+        for node in rows:
+            node.inputs[1].default_value = 1.0 / S
+            node.inputs[2].default_value = 0.5 / S
         ax = float(svm_lobes["alpha_x"])
         rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
         for node in tree.nodes:
@@ -474,11 +529,13 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
                 node.inputs["Roughness"].default_value = float(rough)
                 node.inputs["Anisotropy"].default_value = float(aniso)
         lp = params.layers
-        if lp is not None:
+        if lp is not None and _layer_transforms_change(material, lp):
             theta_k, xi_k = scratch_layers.layer_transforms(lp)
             scratch_svm.set_layer_constants(tree, theta_k, xi_k, "svm")
             if lp.n_layers > EEVEE_MAX_LAYERS:
                 merged = scratch_layers.merged_layers(lp, EEVEE_MAX_LAYERS)
                 scratch_svm.set_layer_constants(tree, *scratch_layers.layer_transforms(merged), "eevee")
         _store_params(material, params, prepared["lobes"])
+        if preview:
+            material[PREVIEW_KEY] = 1
     return material

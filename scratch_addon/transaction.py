@@ -218,6 +218,9 @@ class _State:
         _restore_custom(self.material, self.custom)
         if self.cycles:
             _restore_props(self.material.cycles, self.cycles)
+        # datablocks an in-place update created and pointed kept nodes at (table images, shader texts): unused
+        # only now that those nodes point back at the old ones
+        _remove_new(self.data)
 
     @staticmethod
     def _collection(db):

@@ -148,10 +148,11 @@ def validate(profile=None, fresnel=None, layers=None, lobes=8, base="mirror", mo
                          rgba[:3], diffuse, backend, lobe_shape)
 
 
-def lobe_data(params: ScratchParams, brdf) -> dict:
-    """Lobe tables for ``params`` (cached): tabulated-tilt lobes, or <= K fitted (plain / box) lobes."""
+def lobe_data(params: ScratchParams, brdf, quality: str = "full") -> dict:
+    """Lobe tables for ``params`` (cached): tabulated-tilt lobes (``quality`` "preview": the quick ones of a
+    live edit, ``lobes.table_lobes``), or <= K fitted (plain / box) lobes."""
     if params.lobe_shape == "table":
-        return table_lobe_data(params)
+        return table_lobe_data(params, quality)
     # the SVM path has one Glossy node per lobe column, so one distribution (GGX) for all slices
     return lobes.lobe_tables(brdf, K=params.lobes, slices=params.slices,
                                      dists="ggx" if params.backend == "svm" else "auto", jitter=params.box_lobes)
@@ -165,9 +166,22 @@ def fit_error(lobe_data: dict) -> float:
         errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
     return float(max(np.max(e) for e in errs))
 
-def table_lobe_data(params: ScratchParams) -> dict:
+def table_lobe_data(params: ScratchParams, quality: str = "full") -> dict:
     """Table lobes of ``params`` from exact view slices (``lobes.table_lobes``, cached by content hash)."""
-    return lobes.table_lobes(params.profile, params.fresnel, resolution=params.resolution, slices=params.slices)
+    return lobes.table_lobes(params.profile, params.fresnel, resolution=params.resolution, slices=params.slices,
+                             quality=quality)
+
+
+def has_preview(params: ScratchParams) -> bool:
+    """True if ``tables(params, "preview")`` differs from the full tables (table lobes: coarser view slices)."""
+    return params.mode == "lobes" and params.lobe_shape == "table"
+
+
+def tables_cached(params: ScratchParams, quality: str = "full") -> bool:
+    """True if ``tables(params, quality)`` reads its lobe tables from the cache (False when unsure)."""
+    if not has_preview(params):
+        return False
+    return lobes.table_lobes_cached(params.profile, params.fresnel, params.resolution, params.slices, quality)
 
 
 def brdf_table(params: ScratchParams):
@@ -175,12 +189,17 @@ def brdf_table(params: ScratchParams):
     return scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
 
 
-def tables(params: ScratchParams) -> dict:
-    """Every table ``params`` renders with (cached by content hash): ``brdf`` (ScratchBRDF), ``lobes``
+def tables(params: ScratchParams, quality: str = "full") -> dict:
+    """Every table ``params`` renders with (cached by content hash): ``brdf`` (ScratchBRDF; None for table
+    lobes in the lobes mode, which do not render from it), ``lobes``
     (lobe data of ``params.lobe_shape``; None in reference mode) and ``svm_lobes`` (what the
-    node-group twin renders: the same data for table lobes or the SVM backend, else table lobes)."""
-    brdf = brdf_table(params)
-    data = lobe_data(params, brdf) if params.mode == "lobes" else None
+    node-group twin renders: the same data for table lobes or the SVM backend, else table lobes).  ``quality``
+    "preview": the quick table lobes of a live edit (``lobes.table_lobes``; only table lobes have one)."""
+    # table lobes come from exact view slices: the M x M BRDF table (the tracer's largest job) is only
+    # traced for the reference mode and fitted lobes, which render from it
+    needs_brdf = params.mode == "reference" or params.lobe_shape != "table"
+    brdf = brdf_table(params) if needs_brdf else None
+    data = lobe_data(params, brdf, quality) if params.mode == "lobes" else None
     svm = data if data is not None and (params.backend == "svm" or params.lobe_shape == "table") else None
     if svm is None:  # the SVM twin of fitted (per-lobe GGX/Beckmann) or reference shaders: table lobes
         svm = table_lobe_data(params)

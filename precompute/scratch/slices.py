@@ -330,17 +330,22 @@ def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes):
         if not tests:
             break
         traced(tests)
+        # every test view of this round at once: the interpolated slice's moments against the exact ones
+        t_idx = np.array(tests)
+        ends = np.array(owner)                                                       # [n, 2] (a, b)
+        pt = ang(t_idx)
+        f = (pt - ang(ends[:, 0])) / (ang(ends[:, 1]) - ang(ends[:, 0]))
+        model = 0.0
+        for node, p in ((ends[:, 0], 1.0 - f), (ends[:, 1], f)):
+            rows = np.stack([cache[int(i)][0] for i in node])                        # [n, M, 1 + C]
+            cen = np.stack([cache[int(i)][1] for i in node])
+            ev = np.stack([cache[int(i)][2] for i in node])
+            model = model + p[:, None, None] * _row_moments(rows, cen, ev, ang(node)[:, None], pt[:, None])
+        exact = np.stack([cache[int(t)][3] for t in t_idx])                          # [n, 1 + C, 4]
+        errs = _moment_error(model, exact) / _relax(pt)
+        worst = float(errs.max())
         bad = {}
-        worst = 0.0
-        for t, (a, b) in zip(tests, owner):
-            pa, pb, pt = ang(a), ang(b), ang(t)
-            f = (pt - pa) / (pb - pa)
-            model = 0.0
-            for node, p in ((a, 1.0 - f), (b, f)):
-                rows, cen, ev, _ = cache[node]
-                model = model + p * _row_moments(rows, cen, ev, ang(node), pt)       # [1 + C, 4]
-            err = float(_moment_error(model[None], cache[t][3][None])[0]) / _relax(pt)
-            worst = max(worst, err)
+        for err, (a, b) in zip(errs.tolist(), owner):
             if err > tol:
                 bad[(a, b)] = max(err, bad.get((a, b), 0.0))
         room = max_nodes - len(nodes)
@@ -370,13 +375,14 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1):
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
     exact = np.einsum("smtc,qm->stcq", fm_b, basis_f)                                 # [S, T, C, 3]
     best = None
+    Ys = [Y[..., c][live] for c in range(C)]                                              # [L, T] per channel
+    Vts = [np.linalg.svd(sw[:, None] * Yc, full_matrices=False)[2] for Yc in Ys]       # one SVD per channel
     for K in range(1, kmax + 1):
         B = np.zeros((K, NT, C))
         coef = np.zeros((S, Mg, K, C))
         for c in range(C):
-            Yc = Y[..., c][live]                                                           # [L, T]
-            _, _, Vt = np.linalg.svd(sw[:, None] * Yc, full_matrices=False)
-            Bk = Vt[:K]
+            Yc = Ys[c]
+            Bk = Vts[c][:K]
             B[:, :, c] = Bk
             coef[live, :, c] = Yc @ Bk.T
         Yk = np.maximum(np.einsum("smkc,ktc->smtc", coef, B), 0.0)

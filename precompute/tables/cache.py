@@ -277,6 +277,12 @@ def cached_arrays(
     return _unpack(channels, meta)
 
 
+def is_cached(namespace: str, version: str, inputs: Mapping) -> bool:
+    """True if ``cached_arrays`` with these arguments would read a stored file (no compute), as far as a
+    file's presence tells (a damaged file is still recomputed)."""
+    return os.path.isfile(_path(namespace, content_key(namespace, version, inputs)))
+
+
 def clear(namespace: str | None = None) -> int:
     """Delete cache files (of one namespace, or all); returns how many were removed.
 

@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 
 RES = 64   # small tables keep the module fast (a cache miss at 64 is ~0.1 s)
+#: the material the tests edit: Fig. 1d's 32 layers on iron, quartic 0.08 (pinned: the 'demo' preset may change)
+MAT = dict(resolution=RES, profile=("quartic", 0.08),
+           layers=dict(n_layers=32, theta_deg=360.0, length=0.3, width=3e-4, density=0.2))
 
 
 def _image_hash(img) -> str:
@@ -47,7 +50,7 @@ def _inputs(node) -> dict:
 
 @pytest.fixture
 def mat(addon, scene):
-    m = addon.api.make_scratched_material("demo", resolution=RES)
+    m = addon.api.make_scratched_material("demo", **MAT)
     assert addon.live.is_live(m)
     return m
 
@@ -160,7 +163,7 @@ def test_drag_in_the_ui_queues_one_update_with_the_last_value(addon, mat, monkey
     monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
     prepared = []
     real = addon.scratch_material.prepare
-    monkeypatch.setattr(addon.scratch_material, "prepare", lambda spec: prepared.append(spec) or real(spec))
+    monkeypatch.setattr(addon.scratch_material, "prepare", lambda spec, *a: prepared.append(spec) or real(spec, *a))
     before = _snapshot(mat)
     for v in np.linspace(0.1, 0.4, 12):
         mat.scratch.profile_value = float(v)
@@ -194,7 +197,7 @@ def test_keyframed_density_renders_differently_on_two_frames(addon, scene, tmp_p
 
     render = addon.render
     scene = render.reset_scene()
-    m = addon.api.make_scratched_material("demo", resolution=RES)
+    m = addon.api.make_scratched_material("demo", **MAT)
     render.studio_world(scene)
     render.add_torus(scene, material=m)
     render.add_camera(scene, location=(0.0, -4.2, 2.6), target=(0.0, 0.0, -0.1), lens=45.0)
@@ -298,3 +301,158 @@ def test_keyframed_settings_reach_the_sockets_before_the_frame_is_evaluated(addo
     assert controls.inputs["Density"].default_value == pytest.approx(0.5, abs=0.05)   # eased: near the middle
     assert 0.2 < controls.inputs["Tint"].default_value[1] < 1.0
     assert controls.inputs["Tint"].default_value[0] == pytest.approx(1.0)
+
+
+# ------------------------------------------------------------------ table shape changes in place, preview tables
+def _rows_image(mat, role):
+    prefix = "Scratch table " + role + " "
+    return next(n.image for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage" and n.image is not None
+                and n.image.name.startswith(prefix))
+
+
+def _pixels(img) -> np.ndarray:
+    px = np.empty(len(img.pixels), np.float32)
+    img.pixels.foreach_get(px)
+    return px.reshape(img.size[1], img.size[0], 4)
+
+
+def _theta_y(mat) -> np.ndarray:
+    """What the node tree's θo factor Y evaluates to, per node row, bin group and θo sample: Σ_k coef_k B_k
+    decoded from the Y and Btheta images (node_groups.scratch_svm.table_images), whatever the stored rank."""
+    Y, B = _pixels(_rows_image(mat, "Y"))[..., :3], _pixels(_rows_image(mat, "Btheta"))[..., :3]
+    K = B.shape[0]
+    coef = Y.reshape(Y.shape[0], -1, K, 3)
+    return np.einsum("sgkc,ktc->sgtc", coef.astype(np.float64), B.astype(np.float64))
+
+
+def _row_constants(mat) -> list:
+    return [(n.inputs[1].default_value, n.inputs[2].default_value) for n in mat.node_tree.nodes
+            if n.get("scratch_table_rows")]
+
+
+def _same_tables_as_fresh(addon, mat):
+    import bpy
+
+    fresh = bpy.data.materials.new("fresh")
+    addon.api.make_scratched_material(material=fresh, **mat.scratch.to_params())
+    assert _snapshot(mat)["text"] == _snapshot(fresh)["text"]
+    assert _snapshot(mat)["C"] == _snapshot(fresh)["C"]          # N, A, C images: identical pixels
+    np.testing.assert_allclose(_theta_y(mat), _theta_y(fresh), rtol=0, atol=1e-6)
+    S = _rows_image(fresh, "A").size[1]
+    assert _rows_image(mat, "A").size[1] == S
+    rows = np.array(_row_constants(mat))
+    assert rows.shape == np.array(_row_constants(fresh)).shape and rows.size
+    np.testing.assert_allclose(rows, [(1.0 / S, 0.5 / S)] * len(rows), rtol=1e-6)
+    return fresh
+
+
+def test_table_shape_change_updates_in_place_like_a_fresh_build(addon, mat):
+    """Profile + metal change whose adaptive tables have another node count S and a smaller θo rank: the same
+    nodes (no rebuild), the rows constants follow S, the θo factor decodes to a fresh build's (zero-padded rank)."""
+    nodes = sorted(n.as_pointer() for n in mat.node_tree.nodes)
+    S0 = _rows_image(mat, "A").size[1]
+    K0 = _rows_image(mat, "Btheta").size[1]
+    with addon.live.batch():
+        mat.scratch.metal = "aluminium"
+        mat.scratch.profile_value = 0.15      # RES 64: S 87 -> 83, rank 8 -> 5
+    assert addon.live.last_update()["kind"] == "tables"
+    assert sorted(n.as_pointer() for n in mat.node_tree.nodes) == nodes
+    fresh = _same_tables_as_fresh(addon, mat)
+    assert _rows_image(fresh, "A").size[1] != S0                      # the shape did change
+    assert _rows_image(fresh, "Btheta").size[1] < K0 == _rows_image(mat, "Btheta").size[1]
+
+
+def test_theta_rank_growth_rebuilds(addon, scene):
+    m = addon.api.make_scratched_material("demo", **dict(MAT, fresnel="aluminium", profile=("quartic", 0.2)))
+    K0 = _rows_image(m, "Btheta").size[1]
+    m.scratch.metal = "iron"
+    assert _rows_image(m, "Btheta").size[1] > K0
+    assert addon.live.last_update()["kind"] == "rebuild"
+    _same_tables_as_fresh(addon, m)
+
+
+def _ui_mode(live, monkeypatch):
+    monkeypatch.setattr(live, "_background", lambda: False)
+    monkeypatch.setattr(live.bpy.app.timers, "register", lambda *a, **k: None)
+    monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
+
+
+def test_ui_cache_miss_shows_preview_tables_then_the_full_ones(addon, mat, monkeypatch):
+    """UI mode: a table edit that misses the cache applies quick preview tables from the worker first
+    (marked), then the full ones, which equal a fresh build; the main thread never computes tables."""
+    import threading
+    import time
+
+    live, sm = addon.live, addon.scratch_material
+    _ui_mode(live, monkeypatch)
+    threads = []
+    real = sm.prepare
+    monkeypatch.setattr(sm, "prepare", lambda spec, q="full": threads.append((threading.current_thread(), q))
+                        or real(spec, q))
+    mat.scratch.profile_value = 0.237          # never seen: a miss
+    live._pending[mat.name] = 0.0              # the debounce is over
+    seen = []
+    for _ in range(4000):
+        again = live._tick()
+        if live.last_update() and live.last_update()["kind"] == "tables" and (not seen or seen[-1][0] != id(
+                live.last_update())):
+            seen.append((id(live.last_update()), bool(mat.get(sm.PREVIEW_KEY)), _rows_image(mat, "A").size[1]))
+        if again is None:
+            break
+        time.sleep(0.01)
+    assert not live.pending()
+    assert [q for _t, q in threads] == ["preview", "full"]
+    assert all(t is not threading.main_thread() for t, _q in threads)
+    assert [p for _i, p, _s in seen] == [True, False]
+    assert seen[0][2] < seen[1][2]                       # the preview has fewer φo nodes
+    assert sm.PREVIEW_KEY not in mat
+    _same_tables_as_fresh(addon, mat)
+
+
+def test_undo_to_a_preview_state_brings_the_full_tables(addon, mat):
+    """An undo step taken while preview tables showed: the undo handler computes the full ones."""
+    mat.scratch.profile_value = 0.21
+    assert addon.live.last_update()["kind"] == "tables"
+    mat[addon.scratch_material.PREVIEW_KEY] = 1
+    addon.live._stats["last"] = None
+    addon.live._on_undo()
+    assert addon.scratch_material.PREVIEW_KEY not in mat
+    assert addon.live.last_update()["kind"] == "tables"   # recomputed (a cache hit), not skipped as up to date
+    _same_tables_as_fresh(addon, mat)
+
+
+def test_a_file_saved_with_preview_tables_loads_with_the_full_ones(addon, mat, tmp_path):
+    import bpy
+
+    sm = addon.scratch_material
+    mat.scratch.profile_value = 0.21
+    want = _snapshot(mat)["C"]
+    mat[sm.PREVIEW_KEY] = 1                   # saved during the ~1 s a preview shows
+    mat.use_fake_user = True                  # (no object uses it: kept in the file anyway)
+    name, path = mat.name, str(tmp_path / "preview.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    m = bpy.data.materials[name]
+    assert sm.PREVIEW_KEY not in m and _snapshot(m)["C"] == want
+
+
+def test_failed_shape_change_leaves_the_material_as_it_was(addon, mat, monkeypatch):
+    """Nothing lost (scratch_addon.transaction): an in-place update that changes the tables' shape and fails at
+    its last step leaves the images, the row constants, the shader and the nodes as they were, and no new
+    table image behind."""
+    import bpy
+
+    sm = addon.scratch_material
+    before, rows = _snapshot(mat), _row_constants(mat)
+    images = {img.name for img in bpy.data.images}
+
+    def broken(*_a, **_k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(sm, "_store_params", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        with addon.live.batch():
+            mat.scratch.metal = "aluminium"
+            mat.scratch.profile_value = 0.15      # RES 64: S 87 -> 83, rank 8 -> 5
+    assert _snapshot(mat) == before and _row_constants(mat) == rows
+    assert {img.name for img in bpy.data.images} == images
