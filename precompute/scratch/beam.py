@@ -15,8 +15,12 @@ One bounce, for every beam at once (numpy, no loops over beams):
   vertices after ``v0`` first reaches ``L``.  Segment ``w`` is therefore hit by the levels
   ``(Q_w, Q_{w+1}]`` (1D visibility), which splits the beam into sub-beams exactly.
 - A free flight never spans more than one period (the highest point repeats every period),
-  so the scan covers at most ``P`` segments.  Buckets of vertices with bounding boxes skip
-  stretches that cannot reach the beam's lowest level; only 2 buckets are scanned exactly.
+  so the scan covers at most ``P`` segments.  The vertices where ``Q`` rises (the only ones that
+  matter) are found by descending a max-level hierarchy of vertex bounding boxes (a 1D max mipmap
+  over x, ``_Hierarchy``): ``O(log P)`` steps per hit and per escaping beam instead of a scan of the
+  period, vectorised over all beams; the result is the scan's, bit for bit (``tests/scratch/
+  test_beam_visibility.py`` holds it equal to a brute-force scan).  The first bounce, a parallel beam
+  from above, is one running maximum over two periods per direction (``O(P)``).
 - Sub-beams are reflected (mirror), attenuated by Fresnel with the 3D angle of §4.2
   (``cos = cos(theta_o) |d . n|``), and traced again; beams with no further hit leave.
 
@@ -43,9 +47,7 @@ __all__ = ["ExitRecords", "trace_exact"]
 
 _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
-_BUCKET_SCALE = 1.0
-_SCAN_FACTOR = 1
-_VIS_ELEMS = 1 << 21  # [beam, bucket] elements per visibility batch (~6 such arrays: ~100 MB)
+_VIS_BEAMS = 1 << 16  # beams per visibility batch (~20 working arrays of 8 bytes each: ~10 MB)
 
 
 @dataclass
@@ -75,14 +77,51 @@ class ExitRecords:
     bounds: np.ndarray | None = None
 
 
+class _Hierarchy:
+    """Max-level hierarchy over the unrolled vertices of both frames (a 1D max mipmap over x).
+
+    Node ``i`` of level ``k`` holds the vertices ``[i 2^k, (i + 1) 2^k)`` and their bounding box
+    (``xmin``, ``xmax``, ``hmax``); the level ``s = dx h - dh x`` (``dx >= 0``) of any of them is at most
+    ``dx hmax + max(-dh xmin, -dh xmax)`` (and equal to it, bit for bit, at level 0: one vertex).  Flat
+    arrays: node ``(o, k, i)`` is at ``off[k] + o nk[k] + i``.
+    """
+
+    def __init__(self, X: np.ndarray, H: np.ndarray):
+        L = X.shape[1]
+        xmin, xmax, hmax = [X], [X], [H]
+        while xmin[-1].shape[1] > 1:
+            a, b, c = xmin[-1], xmax[-1], hmax[-1]
+            m = a.shape[1]
+            if m % 2:  # pad the odd node with a copy of the last one (same box)
+                a, b, c = (np.concatenate([z, z[:, -1:]], 1) for z in (a, b, c))
+            xmin.append(np.minimum(a[:, 0::2], a[:, 1::2]))
+            xmax.append(np.maximum(b[:, 0::2], b[:, 1::2]))
+            hmax.append(np.maximum(c[:, 0::2], c[:, 1::2]))
+        self.top = len(xmin) - 1
+        self.nk = np.array([z.shape[1] for z in xmin], np.int64)
+        self.off = np.concatenate([[0], np.cumsum(2 * self.nk)[:-1]]).astype(np.int64)
+        self.xmin = np.concatenate([z.ravel() for z in xmin])
+        self.xmax = np.concatenate([z.ravel() for z in xmax])
+        self.hmax = np.concatenate([z.ravel() for z in hmax])
+        self.length = L
+
+    def ascend(self, k: np.ndarray, i: np.ndarray):
+        """From node ``i`` of level ``k`` up while it is a first child (same first vertex): ``(k, i)``."""
+        low = i & -i
+        tz = np.frexp(low.astype(np.float64))[1].astype(np.int64) - 1  # trailing zero bits of i (i >= 1)
+        tz = np.minimum(tz, self.top - k)
+        return k + tz, i >> tz
+
+
 class _Geometry:
-    """The periodic polyline in both travel frames, unrolled over a few periods, plus buckets."""
+    """The periodic polyline in both travel frames, unrolled over a few periods, plus its hierarchy."""
 
     def __init__(self, verts: np.ndarray):
         P = verts.shape[0] - 1
+        if P < 1 or not np.all(np.isfinite(verts)) or np.any(np.diff(verts[:, 0]) < 0.0):
+            raise ValueError("verts: expected a finite height-field polyline, x non-decreasing")
         self.P = P
-        self.bucket = B = int(max(4, min(64, round(_BUCKET_SCALE * np.sqrt(P)))))
-        self.G = int(_SCAN_FACTOR * B)
+        self.G = int(max(4, min(64, round(np.sqrt(P)))))
         L = 3 * P + 2 * self.G + 2
         k = np.arange(L)
         X = np.empty((2, L))
@@ -95,15 +134,9 @@ class _Geometry:
         e = np.stack([X[:, 1 : P + 1] - X[:, :P], H[:, 1 : P + 1] - H[:, :P]], -1)  # (2, P, 2)
         ln = np.hypot(e[..., 0], e[..., 1])
         self.normal = np.stack([-e[..., 1], e[..., 0]], -1) / np.maximum(ln, 1e-300)[..., None]
-        nb = -(-L // B)
-        idx = np.minimum(np.arange(nb)[:, None] * B + np.arange(B + 1)[None, :], L - 1)
-        self.bxmin = X[:, idx].min(-1)
-        self.bxmax = X[:, idx].max(-1)
-        self.bhmax = H[:, idx].max(-1)
-        self.nbuckets = nb
+        self.hier = _Hierarchy(X, H)
         # flat copies for fast 1D gathers (index = frame * length + position)
         self.Xf, self.Hf = X.ravel(), H.ravel()
-        self.bxmin_f, self.bxmax_f, self.bhmax_f = self.bxmin.ravel(), self.bxmax.ravel(), self.bhmax.ravel()
 
 
 def _levels(g: _Geometry, o, j, t, dx, dh):
@@ -247,11 +280,10 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
 
 
 def _visibility_batched(g: _Geometry, bm: dict):
-    """``_visibility`` on batches of beams whose ``[beam, bucket]`` work arrays hold at most ``_VIS_ELEMS``
-    elements (every beam is independent; the concatenated result equals one call on all beams)."""
+    """``_visibility`` on batches of at most ``_VIS_BEAMS`` beams (every beam is independent; the
+    concatenated result equals one call on all beams): the working arrays stay cache-sized and bounded."""
     n = bm["sample"].size
-    per_beam = -(-g.P // g.bucket) + g.G + 4
-    step = max(1, _VIS_ELEMS // per_beam)
+    step = _VIS_BEAMS
     if n <= step:
         return _visibility(g, bm)
     hit_parts, esc_parts = [], []
@@ -268,99 +300,90 @@ def _visibility_batched(g: _Geometry, bm: dict):
 def _visibility(g: _Geometry, bm: dict):
     """Split each beam (leaving segment j towards +x in its frame) into sub-beams by first hit.
 
+    The rays of level ``L`` in ``(Lcur, La]`` (``Lcur`` starts at the beam's lowest level ``Lb``) first
+    hit the segment that ends at the next vertex ``v`` after ``j + 1`` whose level ``s(v)`` exceeds
+    ``Lcur`` (a new running maximum): that segment takes the levels ``(Lcur, min(s(v), La)]``, then
+    ``Lcur = s(v)``; what is left above the last maximum of one period escapes.  The next such vertex is
+    found by descending the max-level hierarchy of ``_Geometry`` (``_Hierarchy.find``): ``O(log P)``
+    steps per hit instead of a scan of the whole period, all beams advanced together.
+
     Returns ``hits`` (dict: beam, o, seg, shift, t0, t1, width, P0, P1 = unfolded edge points of
     the t0 / t1 edges) and ``escapes`` (dict: beam, width, Plo, Phi).
-    Arrays are laid out ``[window position, beam]`` so that numpy runs along beams.
     """
-    P, B, G, L = g.P, g.bucket, g.G, g.X.shape[1]
-    o, dx, dh, La = bm["o"], bm["dx"], bm["dh"], bm["La"]
-    n = o.size
-    v0 = bm["j"] + 1
-    end = v0 + P
-    nbw = -(-P // B) + 2
-    bidx = v0[:, None] // B + np.arange(nbw)[None, :]
-    bstart = bidx * B
-    fb = o[:, None] * g.nbuckets + bidx
-    # upper bound of the level s over each bucket's bounding box ([beam, bucket])
-    dxc, dhc = dx[:, None], dh[:, None]
-    bound = dxc * g.bhmax_f[fb] + np.maximum(-dhc * g.bxmin_f[fb], -dhc * g.bxmax_f[fb])
-    bound[bstart >= end[:, None]] = -np.inf
-    bend = bstart + B
-    Lcur = bm["Lb"].copy()
-    Pcur = bm["Plo"].copy()  # unfolded point of the edge at level Lcur
-    pos = v0.copy()
-    act = np.arange(n)
+    P, L = g.P, g.X.shape[1]
+    hy = g.hier
+    o, dx, dh, La, Lb = bm["o"], bm["dx"], bm["dh"], bm["La"], bm["Lb"]
+    v0 = (bm["j"] + 1).astype(np.int64)
+    Pcur = bm["Plo"].copy()  # unfolded point of the vertex holding the running maximum (or the beam's edge)
     hits, escapes = [], []
-    k = np.arange(G + 1, dtype=np.int8 if G < 127 else np.int32)[:, None]  # small ints: cheap running argmax
-    first_pass = True
+    # state of the beams still searching, compacted: beam, level, node, current maximum Lcur
+    act = np.flatnonzero(Lb < La)  # a beam of zero width neither hits nor leaves
+    k = np.zeros(act.size, np.int64)
+    i = v0[act].copy()
+    k, i = hy.ascend(k, i)
+    T = Lb[act].copy()
+    ao, adx, adh, aLa, aend = o[act], dx[act], dh[act], La[act], v0[act] + P
     while act.size:
-        if first_pass:
-            valid = bound >= Lcur[:, None]  # every bucket ends after v0
-            first_pass = False
-        else:
-            valid = (bend[act] > pos[act, None]) & (bound[act] >= Lcur[act, None])
-        has = valid.any(1)
-        gone = act[~has]
-        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
-        act = act[has]
-        if not act.size:
-            break
-        first = np.argmax(valid[has], 1)
-        u = np.maximum(pos[act], bstart[act, first])
-        vi = u[None, :] + k
-        oa = o[act]
-        fi = oa[None, :] * L + vi
-        dxa, dha, Lc, La_a = dx[act], dh[act], Lcur[act], La[act]
-        xv, hv = g.Xf[fi], g.Hf[fi]
-        sv = dxa * hv - dha * xv
-        sv[vi > end[act][None, :]] = -np.inf
-        Q = np.maximum.accumulate(sv, axis=0)
-        am = np.maximum.accumulate(np.where(sv >= Q, k, 0), axis=0)  # row of the running-max vertex
-        lo = np.maximum(Q[:-1], Lc)
-        hi = np.minimum(Q[1:], La_a)
-        keep = (hi - lo) > 0.0
-        w, r = np.nonzero(keep)
-        if r.size:
-            sA, sB = sv[:-1][keep], sv[1:][keep]
-            den = sB - sA
-            lk, hk = lo[keep], hi[keep]
-            t0 = np.clip((lk - sA) / den, 0.0, 1.0)
-            t1 = np.clip((hk - sB) / den + 1.0, 0.0, 1.0)
-            useg = u[r] + w
-            ar = act[r]
-            U = (bm["R"][ar], bm["tr"][ar])
-            # lower edge: the occluding vertex if it is above the current level, else the beam's own edge
-            occ = Q[:-1][keep] > Lc[r]
-            va = u[r] + am[:-1][keep]
-            fa = o[ar] * L + va
-            p_lo = np.where(occ[:, None], _apply(U, g.Xf[fa], g.Hf[fa]), Pcur[ar])
-            # upper edge: the segment end vertex if it is below the beam top, else the beam's own edge
-            capped = Q[1:][keep] < La_a[r]
-            fb_ = o[ar] * L + useg + 1
-            p_hi = np.where(capped[:, None], _apply(U, g.Xf[fb_], g.Hf[fb_]), bm["Phi"][ar])
-            hits.append((ar, o[ar], useg % P, useg // P, t0, t1, hk - lk, p_lo, p_hi))
-        raised = Q[-1] > Lc
-        if raised.any():
-            ra = act[raised]
-            vr = u[raised] + am[-1][raised]
-            fr = o[ra] * L + vr
-            Pcur[ra] = _apply((bm["R"][ra], bm["tr"][ra]), g.Xf[fr], g.Hf[fr])
-            Lcur[ra] = Q[-1][raised]
-        pos[act] = u + G
-        done = Lcur[act] >= La_a
-        out_of_window = ~done & (pos[act] >= end[act])
-        gone = act[out_of_window]
-        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
-        act = act[~done & ~out_of_window]
+        start = i << k
+        fin = start > aend
+        flat = hy.off[k] + ao * hy.nk[k] + np.minimum(i, hy.nk[k] - 1)
+        b = adx * hy.hmax[flat] + np.maximum(-adh * hy.xmin[flat], -adh * hy.xmax[flat])
+        up = b > T  # the node may hold a vertex above the running maximum
+        leaf = k == 0
+        found = up & leaf & ~fin
+        down = up & ~leaf & ~fin
+        stop = fin.copy()
+        if found.any():
+            f = np.flatnonzero(found)
+            ar, v, sB, Tf, Laf = act[f], i[f], b[f], T[f], aLa[f]
+            of = o[ar]
+            seg = v > v0[ar]  # the first vertex closes the beam's own segment: only a new maximum
+            if seg.any():
+                r, vr = ar[seg], v[seg]
+                fA = of[seg] * L + vr - 1
+                sA = dx[r] * g.Hf[fA] - dh[r] * g.Xf[fA]
+                sb = sB[seg]
+                lk, hk = Tf[seg], np.minimum(sb, Laf[seg])
+                den = sb - sA
+                t0 = np.clip((lk - sA) / den, 0.0, 1.0)
+                t1 = np.clip((hk - sb) / den + 1.0, 0.0, 1.0)
+                U = (bm["R"][r], bm["tr"][r])
+                fB = fA + 1
+                p_hi = np.where((sb < Laf[seg])[:, None], _apply(U, g.Xf[fB], g.Hf[fB]), bm["Phi"][r])
+                useg = vr - 1
+                hits.append((r, o[r], useg % P, useg // P, t0, t1, hk - lk, Pcur[r], p_hi))
+            done = sB >= Laf
+            stop[f[done]] = True
+            keep = ~done
+            rk = ar[keep]
+            fk = of[keep] * L + v[keep]
+            Pcur[rk] = _apply((bm["R"][rk], bm["tr"][rk]), g.Xf[fk], g.Hf[fk])
+            T[f] = sB
+        # next node: down to the first child, or past this node (then up while it is a first child)
+        nk_, ni_ = hy.ascend(k + 0, i + 1)
+        k = np.where(down, k - 1, nk_)
+        i = np.where(down, 2 * i, ni_)
+        if stop.any():
+            esc = fin & ~found
+            ge = act[esc]
+            escapes.append((ge, La[ge] - T[esc], Pcur[ge]))
+            live = ~stop
+            act, k, i, T = act[live], k[live], i[live], T[live]
+            ao, adx, adh, aLa, aend = ao[live], adx[live], adh[live], aLa[live], aend[live]
     keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
     if hits:
-        hit = {key: np.concatenate([h[i] for h in hits]) for i, key in enumerate(keys)}
+        hit = {key: np.concatenate([h[q] for h in hits]) for q, key in enumerate(keys)}
+        for key in ("beam", "o", "seg", "shift"):
+            hit[key] = hit[key].astype(np.intp)
     else:
-        hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if i < 4 else np.float64)
-               for i, key in enumerate(keys)}
-    esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
-           "width": np.concatenate([e[1] for e in escapes]),
-           "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
+        hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if q < 4 else np.float64)
+               for q, key in enumerate(keys)}
+    if escapes:
+        esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
+               "width": np.concatenate([e[1] for e in escapes]),
+               "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
+    else:
+        esc = {"beam": np.zeros(0, np.intp), "width": np.zeros(0), "Plo": np.zeros((0, 2))}
     esc["Phi"] = bm["Phi"][esc["beam"]]
     return hit, esc
 
