@@ -80,35 +80,38 @@ class ExitRecords:
 class _Hierarchy:
     """Max-level hierarchy over the unrolled vertices of both frames (a 1D max mipmap over x).
 
-    Node ``i`` of level ``k`` holds the vertices ``[i 2^k, (i + 1) 2^k)`` and their bounding box
-    (``xmin``, ``xmax``, ``hmax``); the level ``s = dx h - dh x`` (``dx >= 0``) of any of them is at most
-    ``dx hmax + max(-dh xmin, -dh xmax)`` (and equal to it, bit for bit, at level 0: one vertex).  Flat
-    arrays: node ``(o, k, i)`` is at ``off[k] + o nk[k] + i``.
+    Node ``i`` of level ``k`` holds the vertices ``[i 2^k, (i + 1) 2^k)``; over their bounding box the
+    level ``s = dx h - dh x`` (``dx >= 0``) is at most ``dx hmax - dh xsel`` with ``xsel = xmin`` for
+    ``dh >= 0`` and ``xmax`` for ``dh < 0`` (at level 0, one vertex, that is its level bit for bit).
+    Flat arrays ``hmax``, ``xsel`` hold four tables (frame ``o`` x sign of ``dh``: ``t = 2 o + (dh < 0)``),
+    node ``(t, k, i)`` at ``t * size + off[k] + i``; each level has one padding node past its end.
     """
 
     def __init__(self, X: np.ndarray, H: np.ndarray):
-        L = X.shape[1]
         xmin, xmax, hmax = [X], [X], [H]
         while xmin[-1].shape[1] > 1:
             a, b, c = xmin[-1], xmax[-1], hmax[-1]
-            m = a.shape[1]
-            if m % 2:  # pad the odd node with a copy of the last one (same box)
+            if a.shape[1] % 2:  # pad the odd node with a copy of the last one (same box)
                 a, b, c = (np.concatenate([z, z[:, -1:]], 1) for z in (a, b, c))
             xmin.append(np.minimum(a[:, 0::2], a[:, 1::2]))
             xmax.append(np.maximum(b[:, 0::2], b[:, 1::2]))
             hmax.append(np.maximum(c[:, 0::2], c[:, 1::2]))
         self.top = len(xmin) - 1
-        self.nk = np.array([z.shape[1] for z in xmin], np.int64)
-        self.off = np.concatenate([[0], np.cumsum(2 * self.nk)[:-1]]).astype(np.int64)
-        self.xmin = np.concatenate([z.ravel() for z in xmin])
-        self.xmax = np.concatenate([z.ravel() for z in xmax])
-        self.hmax = np.concatenate([z.ravel() for z in hmax])
-        self.length = L
+        nk = np.array([z.shape[1] for z in xmin], np.int64) + 1  # + the padding node
+        self.off = np.concatenate([[0], np.cumsum(nk)[:-1]]).astype(np.int64)
+        self.size = int(nk.sum())
+        pad = lambda z: np.concatenate([z, z[:, -1:]], 1)  # noqa: E731
+        lev = lambda zs, o: np.concatenate([pad(z)[o] for z in zs])  # noqa: E731
+        self.hmax = np.concatenate([lev(hmax, o) for o in (0, 0, 1, 1)])
+        self.xsel = np.concatenate([lev(xmin, 0), lev(xmax, 0), lev(xmin, 1), lev(xmax, 1)])
+
+    def table(self, o: np.ndarray, dh: np.ndarray) -> np.ndarray:
+        """Offset of the table of each beam (frame ``o``, travel direction ``dh``)."""
+        return (2 * o.astype(np.int64) + (dh < 0)) * self.size
 
     def ascend(self, k: np.ndarray, i: np.ndarray):
-        """From node ``i`` of level ``k`` up while it is a first child (same first vertex): ``(k, i)``."""
-        low = i & -i
-        tz = np.frexp(low.astype(np.float64))[1].astype(np.int64) - 1  # trailing zero bits of i (i >= 1)
+        """From node ``i`` (>= 1) of level ``k`` up while it is a first child (same first vertex): ``(k, i)``."""
+        tz = ((i & -i).astype(np.float64).view(np.int64) >> 52) - 1023  # trailing zero bits of i
         tz = np.minimum(tz, self.top - k)
         return k + tz, i >> tz
 
@@ -304,7 +307,7 @@ def _visibility(g: _Geometry, bm: dict):
     hit the segment that ends at the next vertex ``v`` after ``j + 1`` whose level ``s(v)`` exceeds
     ``Lcur`` (a new running maximum): that segment takes the levels ``(Lcur, min(s(v), La)]``, then
     ``Lcur = s(v)``; what is left above the last maximum of one period escapes.  The next such vertex is
-    found by descending the max-level hierarchy of ``_Geometry`` (``_Hierarchy.find``): ``O(log P)``
+    found by descending the max-level hierarchy ``_Hierarchy``: ``O(log P)``
     steps per hit instead of a scan of the whole period, all beams advanced together.
 
     Returns ``hits`` (dict: beam, o, seg, shift, t0, t1, width, P0, P1 = unfolded edge points of
@@ -318,16 +321,14 @@ def _visibility(g: _Geometry, bm: dict):
     hits, escapes = [], []
     # state of the beams still searching, compacted: beam, level, node, current maximum Lcur
     act = np.flatnonzero(Lb < La)  # a beam of zero width neither hits nor leaves
-    k = np.zeros(act.size, np.int64)
-    i = v0[act].copy()
-    k, i = hy.ascend(k, i)
+    k, i = hy.ascend(np.zeros(act.size, np.int64), v0[act])
     T = Lb[act].copy()
-    ao, adx, adh, aLa, aend = o[act], dx[act], dh[act], La[act], v0[act] + P
+    tb, adx, adh, aLa, aend = hy.table(o[act], dh[act]), dx[act], dh[act], La[act], v0[act] + P
+    off, top = hy.off, hy.top
     while act.size:
-        start = i << k
-        fin = start > aend
-        flat = hy.off[k] + ao * hy.nk[k] + np.minimum(i, hy.nk[k] - 1)
-        b = adx * hy.hmax[flat] + np.maximum(-adh * hy.xmin[flat], -adh * hy.xmax[flat])
+        fin = (i << k) > aend
+        flat = tb + off[k] + i
+        b = adx * hy.hmax[flat] - adh * hy.xsel[flat]
         up = b > T  # the node may hold a vertex above the running maximum
         leaf = k == 0
         found = up & leaf & ~fin
@@ -360,16 +361,16 @@ def _visibility(g: _Geometry, bm: dict):
             Pcur[rk] = _apply((bm["R"][rk], bm["tr"][rk]), g.Xf[fk], g.Hf[fk])
             T[f] = sB
         # next node: down to the first child, or past this node (then up while it is a first child)
-        nk_, ni_ = hy.ascend(k + 0, i + 1)
-        k = np.where(down, k - 1, nk_)
-        i = np.where(down, 2 * i, ni_)
+        ni = i + 1
+        tz = np.minimum(((ni & -ni).astype(np.float64).view(np.int64) >> 52) - 1023, top - k)
+        k = np.where(down, k - 1, k + tz)
+        i = np.where(down, i << 1, ni >> tz)
         if stop.any():
-            esc = fin & ~found
-            ge = act[esc]
-            escapes.append((ge, La[ge] - T[esc], Pcur[ge]))
+            ge = act[fin]
+            escapes.append((ge, La[ge] - T[fin], Pcur[ge]))
             live = ~stop
             act, k, i, T = act[live], k[live], i[live], T[live]
-            ao, adx, adh, aLa, aend = ao[live], adx[live], adh[live], aLa[live], aend[live]
+            tb, adx, adh, aLa, aend = tb[live], adx[live], adh[live], aLa[live], aend[live]
     keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
     if hits:
         hit = {key: np.concatenate([h[q] for h in hits]) for q, key in enumerate(keys)}
