@@ -48,6 +48,10 @@ __all__ = ["ExitRecords", "trace_exact"]
 _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
 _VIS_BEAMS = 1 << 16  # beams per visibility batch (~20 working arrays of 8 bytes each: ~10 MB)
+_VIS_ELEMS = 1 << 21  # [beam, bucket] elements per scan batch (~6 such arrays: ~100 MB)
+#: profiles with more segments use the hierarchy (``_visibility``), smaller ones the bucket scan
+#: (``_visibility_scan``: fewer numpy passes there; measured on the 256-segment quartic at M = 256)
+_HIERARCHY_MIN_SEGMENTS = 512
 
 
 @dataclass
@@ -116,6 +120,21 @@ class _Hierarchy:
         return k + tz, i >> tz
 
 
+class _Buckets:
+    """Buckets of ``B ~ sqrt(P)`` consecutive unrolled vertices with their bounding boxes (``_visibility_scan``)."""
+
+    def __init__(self, X: np.ndarray, H: np.ndarray, P: int, G: int):
+        L = X.shape[1]
+        self.bucket = B = G
+        self.G = G
+        nb = -(-L // B)
+        idx = np.minimum(np.arange(nb)[:, None] * B + np.arange(B + 1)[None, :], L - 1)
+        self.nbuckets = nb
+        self.bxmin_f = X[:, idx].min(-1).ravel()
+        self.bxmax_f = X[:, idx].max(-1).ravel()
+        self.bhmax_f = H[:, idx].max(-1).ravel()
+
+
 class _Geometry:
     """The periodic polyline in both travel frames, unrolled over a few periods, plus its hierarchy."""
 
@@ -137,7 +156,10 @@ class _Geometry:
         e = np.stack([X[:, 1 : P + 1] - X[:, :P], H[:, 1 : P + 1] - H[:, :P]], -1)  # (2, P, 2)
         ln = np.hypot(e[..., 0], e[..., 1])
         self.normal = np.stack([-e[..., 1], e[..., 0]], -1) / np.maximum(ln, 1e-300)[..., None]
-        self.hier = _Hierarchy(X, H)
+        if P > _HIERARCHY_MIN_SEGMENTS:
+            self.hier = _Hierarchy(X, H)
+        else:
+            self.buckets = _Buckets(X, H, P, self.G)
         # flat copies for fast 1D gathers (index = frame * length + position)
         self.Xf, self.Hf = X.ravel(), H.ravel()
 
@@ -283,15 +305,16 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
 
 
 def _visibility_batched(g: _Geometry, bm: dict):
-    """``_visibility`` on batches of at most ``_VIS_BEAMS`` beams (every beam is independent; the
-    concatenated result equals one call on all beams): the working arrays stay cache-sized and bounded."""
+    """``_visibility`` (or ``_visibility_scan`` for small profiles) on batches of beams (every beam is
+    independent; the concatenated result equals one call on all beams): memory stays bounded."""
     n = bm["sample"].size
-    step = _VIS_BEAMS
+    vis = _visibility if hasattr(g, "hier") else _visibility_scan
+    step = _VIS_BEAMS if vis is _visibility else max(1, _VIS_ELEMS // (-(-g.P // g.buckets.bucket) + g.G + 4))
     if n <= step:
-        return _visibility(g, bm)
+        return vis(g, bm)
     hit_parts, esc_parts = [], []
     for a in range(0, n, step):  # a loop over batches (few)
-        h, e = _visibility(g, {k: (None if v is None else v[a:a + step]) for k, v in bm.items()})
+        h, e = vis(g, {k: (None if v is None else v[a:a + step]) for k, v in bm.items()})
         h["beam"] = h["beam"] + a
         e["beam"] = e["beam"] + a
         hit_parts.append(h)
@@ -385,6 +408,110 @@ def _visibility(g: _Geometry, bm: dict):
                "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
     else:
         esc = {"beam": np.zeros(0, np.intp), "width": np.zeros(0), "Plo": np.zeros((0, 2))}
+    esc["Phi"] = bm["Phi"][esc["beam"]]
+    return hit, esc
+
+
+def _visibility_scan(g: _Geometry, bm: dict):
+    """``_visibility`` by scanning the period in windows of ``G`` vertices, skipping buckets of vertices
+    whose bounding box stays below the beam (``_Buckets``): for small profiles (at most
+    ``_HIERARCHY_MIN_SEGMENTS``), where it takes fewer numpy passes than the hierarchy's descent.
+
+    Returns ``hits`` (dict: beam, o, seg, shift, t0, t1, width, P0, P1 = unfolded edge points of
+    the t0 / t1 edges) and ``escapes`` (dict: beam, width, Plo, Phi).
+    Arrays are laid out ``[window position, beam]`` so that numpy runs along beams.
+    """
+    P, L = g.P, g.X.shape[1]
+    bk = g.buckets
+    B, G = bk.bucket, bk.G
+    o, dx, dh, La = bm["o"], bm["dx"], bm["dh"], bm["La"]
+    n = o.size
+    v0 = bm["j"] + 1
+    end = v0 + P
+    nbw = -(-P // B) + 2
+    bidx = v0[:, None] // B + np.arange(nbw)[None, :]
+    bstart = bidx * B
+    fb = o[:, None] * bk.nbuckets + bidx
+    # upper bound of the level s over each bucket's bounding box ([beam, bucket])
+    dxc, dhc = dx[:, None], dh[:, None]
+    bound = dxc * bk.bhmax_f[fb] + np.maximum(-dhc * bk.bxmin_f[fb], -dhc * bk.bxmax_f[fb])
+    bound[bstart >= end[:, None]] = -np.inf
+    bend = bstart + B
+    Lcur = bm["Lb"].copy()
+    Pcur = bm["Plo"].copy()  # unfolded point of the edge at level Lcur
+    pos = v0.copy()
+    act = np.arange(n)
+    hits, escapes = [], []
+    k = np.arange(G + 1, dtype=np.int8 if G < 127 else np.int32)[:, None]  # small ints: cheap running argmax
+    first_pass = True
+    while act.size:
+        if first_pass:
+            valid = bound >= Lcur[:, None]  # every bucket ends after v0
+            first_pass = False
+        else:
+            valid = (bend[act] > pos[act, None]) & (bound[act] >= Lcur[act, None])
+        has = valid.any(1)
+        gone = act[~has]
+        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
+        act = act[has]
+        if not act.size:
+            break
+        first = np.argmax(valid[has], 1)
+        u = np.maximum(pos[act], bstart[act, first])
+        vi = u[None, :] + k
+        oa = o[act]
+        fi = oa[None, :] * L + vi
+        dxa, dha, Lc, La_a = dx[act], dh[act], Lcur[act], La[act]
+        xv, hv = g.Xf[fi], g.Hf[fi]
+        sv = dxa * hv - dha * xv
+        sv[vi > end[act][None, :]] = -np.inf
+        Q = np.maximum.accumulate(sv, axis=0)
+        am = np.maximum.accumulate(np.where(sv >= Q, k, 0), axis=0)  # row of the running-max vertex
+        lo = np.maximum(Q[:-1], Lc)
+        hi = np.minimum(Q[1:], La_a)
+        keep = (hi - lo) > 0.0
+        w, r = np.nonzero(keep)
+        if r.size:
+            sA, sB = sv[:-1][keep], sv[1:][keep]
+            den = sB - sA
+            lk, hk = lo[keep], hi[keep]
+            t0 = np.clip((lk - sA) / den, 0.0, 1.0)
+            t1 = np.clip((hk - sB) / den + 1.0, 0.0, 1.0)
+            useg = u[r] + w
+            ar = act[r]
+            U = (bm["R"][ar], bm["tr"][ar])
+            # lower edge: the occluding vertex if it is above the current level, else the beam's own edge
+            occ = Q[:-1][keep] > Lc[r]
+            va = u[r] + am[:-1][keep]
+            fa = o[ar] * L + va
+            p_lo = np.where(occ[:, None], _apply(U, g.Xf[fa], g.Hf[fa]), Pcur[ar])
+            # upper edge: the segment end vertex if it is below the beam top, else the beam's own edge
+            capped = Q[1:][keep] < La_a[r]
+            fb_ = o[ar] * L + useg + 1
+            p_hi = np.where(capped[:, None], _apply(U, g.Xf[fb_], g.Hf[fb_]), bm["Phi"][ar])
+            hits.append((ar, o[ar], useg % P, useg // P, t0, t1, hk - lk, p_lo, p_hi))
+        raised = Q[-1] > Lc
+        if raised.any():
+            ra = act[raised]
+            vr = u[raised] + am[-1][raised]
+            fr = o[ra] * L + vr
+            Pcur[ra] = _apply((bm["R"][ra], bm["tr"][ra]), g.Xf[fr], g.Hf[fr])
+            Lcur[ra] = Q[-1][raised]
+        pos[act] = u + G
+        done = Lcur[act] >= La_a
+        out_of_window = ~done & (pos[act] >= end[act])
+        gone = act[out_of_window]
+        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
+        act = act[~done & ~out_of_window]
+    keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
+    if hits:
+        hit = {key: np.concatenate([h[i] for h in hits]) for i, key in enumerate(keys)}
+    else:
+        hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if i < 4 else np.float64)
+               for i, key in enumerate(keys)}
+    esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
+           "width": np.concatenate([e[1] for e in escapes]),
+           "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
     esc["Phi"] = bm["Phi"][esc["beam"]]
     return hit, esc
 

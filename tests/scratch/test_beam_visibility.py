@@ -81,12 +81,17 @@ PROFILES = {
 }
 
 
+@pytest.mark.parametrize("method", ["hierarchy", "scan"])
 @pytest.mark.parametrize("name", sorted(PROFILES))
-def test_hierarchical_visibility_equals_brute_force(name, monkeypatch):
+def test_visibility_equals_brute_force(name, method, monkeypatch):
+    """Both visibility methods (the hierarchy for profiles of more than ``_HIERARCHY_MIN_SEGMENTS``
+    segments, the bucket scan for smaller ones; each forced here on every profile) give brute force's records."""
     verts = PROFILES[name].periodic_vertices()
     phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
     F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0 if method == "hierarchy" else 10**9)
     fast = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5)))
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0)
     monkeypatch.setattr(beam, "_visibility", brute_visibility)
     ref = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5)))
     assert ref["sample"].size > phi.size
@@ -99,6 +104,7 @@ def test_small_batches_equal_one_batch(monkeypatch):
     """The beams of a bounce are split into batches (bounded memory): the split changes nothing."""
     verts = PROFILES["noisy-deep"].periodic_vertices()
     phi = np.linspace(-1.5, 1.5, 15)
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0)
     a = _canon(beam.trace_exact(verts, phi))
     monkeypatch.setattr(beam, "_VIS_BEAMS", 7)
     b = _canon(beam.trace_exact(verts, phi))
