@@ -19,8 +19,11 @@ One bounce, for every beam at once (numpy, no loops over beams):
   matter) are found by descending a max-level hierarchy of vertex bounding boxes (a 1D max mipmap
   over x, ``_Hierarchy``): ``O(log P)`` steps per hit and per escaping beam instead of a scan of the
   period, vectorised over all beams; the result is the scan's, bit for bit (``tests/scratch/
-  test_beam_visibility.py`` holds it equal to a brute-force scan).  The first bounce, a parallel beam
-  from above, is one running maximum over two periods per direction (``O(P)``).
+  test_beam_visibility.py`` holds it equal to a brute-force scan).  Profiles of at most
+  ``_HIERARCHY_MIN_SEGMENTS`` (512) segments keep the bucket scan (``_visibility_scan``: windows of
+  ~sqrt(P) vertices, buckets whose bounding box stays below the beam skipped), which takes fewer numpy
+  passes there.  The first bounce, a parallel beam from above, is one running maximum over two periods
+  per direction (``O(P)``).
 - Sub-beams are reflected (mirror), attenuated by Fresnel with the 3D angle of §4.2
   (``cos = cos(theta_o) |d . n|``), and traced again; beams with no further hit leave.
 
