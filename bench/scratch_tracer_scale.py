@@ -1,26 +1,32 @@
-"""Cost of the scratch BRDF simulation vs profile size, and the error that polyline simplification adds
-(Raymond et al. 2016, §4.1; issue #14).
+"""Cost of the scratch BRDF simulation vs profile size, A/B against an earlier tracer, and the error that
+polyline simplification adds (Raymond et al. 2016, §4.1; issue #14).
 
-Each case runs in a fresh subprocess (peak RSS = ``ru_maxrss`` of the whole process).  For each profile
-and table resolution M the simulation runs with the polyline simplified so that no first-bounce exit
-direction moves by more than ``bins * pi / M`` (``profiles.simplify``; "auto" = 0.25 bins) and without
-simplification (the reference, ``max_exit_error=0``); the error is the relative L1 distance of the
-simplified tables to the reference (``rho_m``; ``rho0`` with RGB Fresnel, channel-summed), and the largest
-change of directional albedo ``sum_o C_o rho_m`` over phi_i.
+Each run is a fresh subprocess (peak = VmHWM of the whole process: Python, numpy and scipy included;
+wall time and the process's CPU time of ``simulate``).  With ``--baseline-rev REV`` the same case also runs
+on the repository at git revision REV (exported with ``git archive`` to a temporary folder), interleaved
+A/B/A/B (``--reps`` pairs): the table gives the medians and the ratio, and the error of this tree's tables
+against the baseline's (relative L1 of ``rho_m`` and of ``rho0``, channels summed: float rounding and
+summation order only, if the tracers agree).  ``est s`` is ``brdf.estimate_cost`` (the up-front estimate
+``simulate`` checks against ``max_seconds``).  With ``--reference`` the unsimplified run of each profile is
+the reference of the simplification error (``rel L1 simpl``).
 
 Profiles: ``smooth-4096`` (a sin^2 groove, depth 0.3, 4,096 samples), ``measured-4096`` (the same plus
 instrument-like noise, 16-sample-correlated, rms 5e-5 widths: the noise slopes (~0.01 rad) exceed the
-tolerance, so it is kept -- it does scatter light), ``quartic-100k`` (the issue's 100,000 segments).
+tolerance, so simplification keeps it -- it does scatter light), ``quartic-100k`` (the issue's 100,000
+segments).  Tolerance ``bins``: no first-bounce exit direction moves by more than ``bins * pi / M``
+(``profiles.simplify``; ``simulate``'s "auto" is 0.25 bins).
 
-    python -m bench scratch_tracer_scale [--quick] [--res 256] [--bins 0.25 1 2]
+    python -m bench scratch_tracer_scale [--quick] [--res 256] [--bins 0.25 1] [--baseline-rev REV] [--reps 2]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
+import tempfile
 import textwrap
 
 from bench._util import ROOT, out_path, pyplot, report
@@ -30,7 +36,7 @@ import json, resource, sys, time
 sys.path.insert(0, {root!r})
 import numpy as np
 from scratch_materials.precompute.scratch import fresnel, profiles
-from scratch_materials.precompute.scratch.brdf import bin_cos_integrals, simulate
+from scratch_materials.precompute.scratch import brdf
 name, M, tol = {name!r}, {M}, {tol!r}
 rng = np.random.default_rng(7)
 if name.startswith("quartic"):
@@ -43,20 +49,21 @@ else:
         h = h + np.convolve(rng.standard_normal(n + 15), np.ones(16) / 16, "valid") * 2e-4
     prof = profiles.tabulated(x, h)
 fr = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
-t0 = time.perf_counter()
-b = simulate(prof, M, fr, max_exit_error=tol, max_seconds=float("inf"))
-wall = time.perf_counter() - t0
+est = brdf.estimate_cost(prof, M, fr, max_exit_error=tol).seconds
+t0, c0 = time.perf_counter(), time.process_time()
+b = brdf.simulate(prof, M, fr, max_exit_error=tol, max_seconds=float("inf"))
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 np.save({out!r}, np.stack([b.rho_m[..., 0], b.rho0.sum(-1)]))
-print(json.dumps(dict(wall=wall, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
+print(json.dumps(dict(wall=wall, cpu=cpu, est=est, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
                       segments=int(b.meta["segments"]), source=int(prof.segments))))
 """
 
 
-def _case(name: str, M: int, tol, tmp: str) -> dict:
+def _case(root: str, name: str, M: int, tol, tmp: str, tag: str) -> dict:
     import numpy as np
 
-    out = os.path.join(tmp, f"{name}-{M}-{tol}.npy")
-    code = textwrap.dedent(_CHILD).format(root=str(ROOT), name=name, M=M, tol=tol, out=out)
+    out = os.path.join(tmp, f"{tag}-{name}-{M}-{tol}.npy")
+    code = textwrap.dedent(_CHILD).format(root=str(root), name=name, M=M, tol=tol, out=out)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if r.returncode:
         return {"error": r.stderr.strip().splitlines()[-1]}
@@ -65,59 +72,99 @@ def _case(name: str, M: int, tol, tmp: str) -> dict:
     return d
 
 
-def main(argv=None) -> int:
-    import tempfile
-
+def _rel_l1(a, b) -> tuple[float, float]:
     import numpy as np
 
-    from scratch_materials.precompute.scratch.brdf import bin_cos_integrals
+    A, B = a.astype(np.float64), b.astype(np.float64)
+    return (float(np.abs(A[0] - B[0]).sum() / np.abs(B[0]).sum()), float(np.abs(A[1] - B[1]).sum() / np.abs(B[1]).sum()))
+
+
+def main(argv=None) -> int:
+    import numpy as np
 
     ap = argparse.ArgumentParser(prog="bench scratch_tracer_scale")
     ap.add_argument("--quick", action="store_true", help="M = 32, smooth profile only (< 30 s)")
     ap.add_argument("--res", type=int, nargs="+", default=[256])
-    ap.add_argument("--bins", type=float, nargs="+", default=[0.25, 1.0, 2.0])
+    ap.add_argument("--bins", type=float, nargs="+", default=[0.25, 1.0])
     ap.add_argument("--profiles", nargs="+", default=["smooth-4096", "measured-4096", "quartic-100k"])
-    ap.add_argument("--tag", default="", help="suffix of the output names (bench/out/scratch_tracer_scale<tag>.md)")
-    ap.add_argument("--no-reference", action="store_true", help="skip the unsimplified reference runs")
+    ap.add_argument("--baseline-rev", default=None, help="git revision to A/B against (e.g. the previous tracer)")
+    ap.add_argument("--baseline-dir", default=None, help="or: a folder holding that revision's tree")
+    ap.add_argument("--reps", type=int, default=2, help="A/B pairs per case (medians are reported)")
+    ap.add_argument("--reference", action="store_true", help="also run unsimplified (simplification error)")
+    ap.add_argument("--tag", default=None, help="suffix of the output names (default _<res>)")
     a = ap.parse_args(argv)
     if a.quick:
         a.res, a.profiles, a.bins = [32], ["smooth-4096"], [0.25, 1.0]
-    load = os.getloadavg()[0]
+    tag = a.tag if a.tag is not None else "_" + "_".join(str(m) for m in a.res)
+    load0 = os.getloadavg()
     rows, plot = [], []
     with tempfile.TemporaryDirectory() as tmp:
+        base = a.baseline_dir
+        if a.baseline_rev and not base:
+            base = os.path.join(tmp, "baseline")
+            os.makedirs(base)
+            arc = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline_rev], capture_output=True, check=True)
+            subprocess.run(["tar", "-x", "-C", base], input=arc.stdout, check=True)
         for M in a.res:
-            C = bin_cos_integrals(M)
             for name in a.profiles:
-                ref = None if a.no_reference else _case(name, M, 0.0, tmp)
-                if ref is not None and "error" not in ref:
-                    rows.append([name, M, "off", ref["source"], ref["segments"], f"{ref['wall']:.2f}",
-                                 f"{ref['maxrss'] / 2**20:.0f}", "0", "0", "0"])
-                elif ref is not None:
-                    rows.append([name, M, "off", "", "", "", "", ref["error"][:80], "", ""])
+                ref = _case(ROOT, name, M, 0.0, tmp, "ref") if a.reference else None
+                if ref is not None and "error" in ref:
+                    rows.append([name, M, "off", "", "", "", "", "", "", "", "", "", "", ref["error"][:80]])
                     ref = None
                 for bins in a.bins:
-                    r = _case(name, M, bins * np.pi / M, tmp)
-                    if "error" in r:
-                        rows.append([name, M, bins, "", "", "", "", r["error"][:80], "", ""])
+                    tol = bins * np.pi / M
+                    runs, bruns = [], []
+                    for _ in range(max(1, a.reps)):  # interleaved A/B: both see the same machine load
+                        if base is not None:
+                            bruns.append(_case(base, name, M, tol, tmp, "base"))
+                        runs.append(_case(ROOT, name, M, tol, tmp, "new"))
+                    if any("error" in r for r in runs):
+                        err = next(r for r in runs if "error" in r)["error"]
+                        rows.append([name, M, bins, "", "", "", "", "", "", "", "", "", "", err[:80]])
                         continue
-                    e_m = e_0 = e_alb = float("nan")
+                    r = runs[-1]
+                    med = lambda rs, k: statistics.median(x[k] for x in rs)  # noqa: E731
+                    wall, cpu, peak = med(runs, "wall"), med(runs, "cpu"), max(x["maxrss"] for x in runs) / 2**20
+                    bw = bc = ratio = e_bm = e_b0 = float("nan")
+                    bruns = [x for x in bruns if "error" not in x]
+                    if bruns:
+                        bw, bc = med(bruns, "wall"), med(bruns, "cpu")
+                        ratio = bw / wall
+                        e_bm, e_b0 = _rel_l1(r["tables"], bruns[-1]["tables"])
+                    e_sm = float("nan")
                     if ref is not None:
-                        A, B = r["tables"].astype(np.float64), ref["tables"].astype(np.float64)
-                        e_m = np.abs(A[0] - B[0]).sum() / np.abs(B[0]).sum()
-                        e_0 = np.abs(A[1] - B[1]).sum() / np.abs(B[1]).sum()
-                        e_alb = float(np.max(np.abs(C @ A[0] - C @ B[0])))
-                        plot.append((name, M, bins, r["wall"], e_m))
-                    rows.append([name, M, bins, r["source"], r["segments"], f"{r['wall']:.2f}",
-                                 f"{r['maxrss'] / 2**20:.0f}", f"{e_m:.2e}", f"{e_0:.2e}", f"{e_alb:.1e}"])
+                        e_sm = _rel_l1(r["tables"], ref["tables"])[0]
+                        plot.append((name, M, bins, wall, e_sm))
+                    rows.append([name, M, bins, r["source"], r["segments"], f"{r['est']:.1f}", f"{wall:.2f}",
+                                 f"{cpu:.2f}", f"{peak:.0f}", f"{bw:.2f}", f"{bc:.2f}", f"{ratio:.2f}",
+                                 f"{e_bm:.1e} / {e_b0:.1e}", f"{e_sm:.2e}"])
                     print(rows[-1], flush=True)
-    notes = (f"One run per case (fresh subprocess, workers = default), machine load average {load:.1f} at the start "
-             "(2 cores shared with other jobs: wall times are noisy, compare within a column). RGB conductor "
-             "Fresnel (3 channels), default supersampling. 'bins' = max first-bounce exit-direction change in "
-             "table bins (pi / M); 'auto' in simulate() is 0.25 bins for profiles of > 512 segments. Errors vs "
-             "the unsimplified run of the same profile: relative L1 of rho_m and of rho0 (channels summed), "
-             "largest |change| of the directional albedo.")
-    report("scratch_tracer_scale" + a.tag, ["profile", "M", "bins", "points", "traced segments", "wall s", "peak MiB",
-                             "rel L1 rho_m", "rel L1 rho0", "max d albedo"], rows, notes)
+    load1 = os.getloadavg()
+    notes = (f"Medians of {a.reps} run(s) per case, each a fresh subprocess (workers = default, 2 threads), "
+             + (f"A/B interleaved with the tracer of revision {a.baseline_rev} ('base'). " if a.baseline_rev else "")
+             + f"Machine load average (1/5/15 min) {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at the start, "
+             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end (2 cores shared with other jobs: compare within "
+             "a row). RGB conductor Fresnel (3 channels), default supersampling. 'bins' = max first-bounce exit-"
+             "direction change in table bins (pi / M); 'auto' in simulate() is 0.25 bins for profiles of > 512 "
+             "segments. 'est s' = brdf.estimate_cost (reference-machine wall seconds). 'vs base' = relative L1 "
+             "of rho_m / rho0 against the baseline's tables; 'rel L1 simpl' = rho_m against the unsimplified run "
+             "(--reference).")
+    report("scratch_tracer_scale" + tag, ["profile", "M", "bins", "points", "traced segments", "est s", "wall s",
+                                          "CPU s", "peak MiB", "base wall s", "base CPU s", "speed-up",
+                                          "vs base (rho_m / rho0)", "rel L1 simpl"], rows, notes)
+    timed = [r for r in rows if r[9] not in ("", "nan")]
+    if timed:  # wall time, this tree vs the baseline, per case
+        plt = pyplot()
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        xs = np.arange(len(timed))
+        ax.bar(xs - 0.2, [float(r[9]) for r in timed], 0.4, label=f"base ({a.baseline_rev})")
+        ax.bar(xs + 0.2, [float(r[6]) for r in timed], 0.4, label="this tree")
+        ax.set_xticks(xs, [f"{r[0]}\nM={r[1]} {r[2]}b" for r in timed], fontsize=6)
+        ax.set_ylabel("wall time (s, median)")
+        ax.set_yscale("log")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out_path(f"scratch_tracer_scale{tag}_ab.png"), dpi=120)
     if plot:
         plt = pyplot()
         fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -131,5 +178,5 @@ def main(argv=None) -> int:
         ax.set_yscale("log")
         ax.legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out_path(f"scratch_tracer_scale{a.tag}.png"), dpi=120)
+        fig.savefig(out_path(f"scratch_tracer_scale{tag}.png"), dpi=120)
     return 0

@@ -15,8 +15,15 @@ One bounce, for every beam at once (numpy, no loops over beams):
   vertices after ``v0`` first reaches ``L``.  Segment ``w`` is therefore hit by the levels
   ``(Q_w, Q_{w+1}]`` (1D visibility), which splits the beam into sub-beams exactly.
 - A free flight never spans more than one period (the highest point repeats every period),
-  so the scan covers at most ``P`` segments.  Buckets of vertices with bounding boxes skip
-  stretches that cannot reach the beam's lowest level; only 2 buckets are scanned exactly.
+  so the scan covers at most ``P`` segments.  The vertices where ``Q`` rises (the only ones that
+  matter) are found by descending a max-level hierarchy of vertex bounding boxes (a 1D max mipmap
+  over x, ``_Hierarchy``): ``O(log P)`` steps per hit and per escaping beam instead of a scan of the
+  period, vectorised over all beams; the result is the scan's, bit for bit (``tests/scratch/
+  test_beam_visibility.py`` holds it equal to a brute-force scan).  Profiles of at most
+  ``_HIERARCHY_MIN_SEGMENTS`` (512) segments keep the bucket scan (``_visibility_scan``: windows of
+  ~sqrt(P) vertices, buckets whose bounding box stays below the beam skipped), which takes fewer numpy
+  passes there.  The first bounce, a parallel beam from above, is one running maximum over two periods
+  per direction (``O(P)``).
 - Sub-beams are reflected (mirror), attenuated by Fresnel with the 3D angle of §4.2
   (``cos = cos(theta_o) |d . n|``), and traced again; beams with no further hit leave.
 
@@ -43,9 +50,11 @@ __all__ = ["ExitRecords", "trace_exact"]
 
 _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
-_BUCKET_SCALE = 1.0
-_SCAN_FACTOR = 1
-_VIS_ELEMS = 1 << 21  # [beam, bucket] elements per visibility batch (~6 such arrays: ~100 MB)
+_VIS_BEAMS = 1 << 16  # beams per visibility batch (~20 working arrays of 8 bytes each: ~10 MB)
+_VIS_ELEMS = 1 << 21  # [beam, bucket] elements per scan batch (~6 such arrays: ~100 MB)
+#: profiles with more segments use the hierarchy (``_visibility``), smaller ones the bucket scan
+#: (``_visibility_scan``: fewer numpy passes there; measured on the 256-segment quartic at M = 256)
+_HIERARCHY_MIN_SEGMENTS = 512
 
 
 @dataclass
@@ -75,14 +84,69 @@ class ExitRecords:
     bounds: np.ndarray | None = None
 
 
+class _Hierarchy:
+    """Max-level hierarchy over the unrolled vertices of both frames (a 1D max mipmap over x).
+
+    Node ``i`` of level ``k`` holds the vertices ``[i 2^k, (i + 1) 2^k)``; over their bounding box the
+    level ``s = dx h - dh x`` (``dx >= 0``) is at most ``dx hmax - dh xsel`` with ``xsel = xmin`` for
+    ``dh >= 0`` and ``xmax`` for ``dh < 0`` (at level 0, one vertex, that is its level bit for bit).
+    Flat arrays ``hmax``, ``xsel`` hold four tables (frame ``o`` x sign of ``dh``: ``t = 2 o + (dh < 0)``),
+    node ``(t, k, i)`` at ``t * size + off[k] + i``; each level has one padding node past its end.
+    """
+
+    def __init__(self, X: np.ndarray, H: np.ndarray):
+        xmin, xmax, hmax = [X], [X], [H]
+        while xmin[-1].shape[1] > 1:
+            a, b, c = xmin[-1], xmax[-1], hmax[-1]
+            if a.shape[1] % 2:  # pad the odd node with a copy of the last one (same box)
+                a, b, c = (np.concatenate([z, z[:, -1:]], 1) for z in (a, b, c))
+            xmin.append(np.minimum(a[:, 0::2], a[:, 1::2]))
+            xmax.append(np.maximum(b[:, 0::2], b[:, 1::2]))
+            hmax.append(np.maximum(c[:, 0::2], c[:, 1::2]))
+        self.top = len(xmin) - 1
+        nk = np.array([z.shape[1] for z in xmin], np.int64) + 1  # + the padding node
+        self.off = np.concatenate([[0], np.cumsum(nk)[:-1]]).astype(np.int64)
+        self.size = int(nk.sum())
+        pad = lambda z: np.concatenate([z, z[:, -1:]], 1)  # noqa: E731
+        lev = lambda zs, o: np.concatenate([pad(z)[o] for z in zs])  # noqa: E731
+        self.hmax = np.concatenate([lev(hmax, o) for o in (0, 0, 1, 1)])
+        self.xsel = np.concatenate([lev(xmin, 0), lev(xmax, 0), lev(xmin, 1), lev(xmax, 1)])
+
+    def table(self, o: np.ndarray, dh: np.ndarray) -> np.ndarray:
+        """Offset of the table of each beam (frame ``o``, travel direction ``dh``)."""
+        return (2 * o.astype(np.int64) + (dh < 0)) * self.size
+
+    def ascend(self, k: np.ndarray, i: np.ndarray):
+        """From node ``i`` (>= 1) of level ``k`` up while it is a first child (same first vertex): ``(k, i)``."""
+        tz = ((i & -i).astype(np.float64).view(np.int64) >> 52) - 1023  # trailing zero bits of i
+        tz = np.minimum(tz, self.top - k)
+        return k + tz, i >> tz
+
+
+class _Buckets:
+    """Buckets of ``B ~ sqrt(P)`` consecutive unrolled vertices with their bounding boxes (``_visibility_scan``)."""
+
+    def __init__(self, X: np.ndarray, H: np.ndarray, P: int, G: int):
+        L = X.shape[1]
+        self.bucket = B = G
+        self.G = G
+        nb = -(-L // B)
+        idx = np.minimum(np.arange(nb)[:, None] * B + np.arange(B + 1)[None, :], L - 1)
+        self.nbuckets = nb
+        self.bxmin_f = X[:, idx].min(-1).ravel()
+        self.bxmax_f = X[:, idx].max(-1).ravel()
+        self.bhmax_f = H[:, idx].max(-1).ravel()
+
+
 class _Geometry:
-    """The periodic polyline in both travel frames, unrolled over a few periods, plus buckets."""
+    """The periodic polyline in both travel frames, unrolled over a few periods, plus its hierarchy."""
 
     def __init__(self, verts: np.ndarray):
         P = verts.shape[0] - 1
+        if P < 1 or not np.all(np.isfinite(verts)) or np.any(np.diff(verts[:, 0]) < 0.0):
+            raise ValueError("verts: expected a finite height-field polyline, x non-decreasing")
         self.P = P
-        self.bucket = B = int(max(4, min(64, round(_BUCKET_SCALE * np.sqrt(P)))))
-        self.G = int(_SCAN_FACTOR * B)
+        self.G = int(max(4, min(64, round(np.sqrt(P)))))
         L = 3 * P + 2 * self.G + 2
         k = np.arange(L)
         X = np.empty((2, L))
@@ -95,15 +159,12 @@ class _Geometry:
         e = np.stack([X[:, 1 : P + 1] - X[:, :P], H[:, 1 : P + 1] - H[:, :P]], -1)  # (2, P, 2)
         ln = np.hypot(e[..., 0], e[..., 1])
         self.normal = np.stack([-e[..., 1], e[..., 0]], -1) / np.maximum(ln, 1e-300)[..., None]
-        nb = -(-L // B)
-        idx = np.minimum(np.arange(nb)[:, None] * B + np.arange(B + 1)[None, :], L - 1)
-        self.bxmin = X[:, idx].min(-1)
-        self.bxmax = X[:, idx].max(-1)
-        self.bhmax = H[:, idx].max(-1)
-        self.nbuckets = nb
+        if P > _HIERARCHY_MIN_SEGMENTS:
+            self.hier = _Hierarchy(X, H)
+        else:
+            self.buckets = _Buckets(X, H, P, self.G)
         # flat copies for fast 1D gathers (index = frame * length + position)
         self.Xf, self.Hf = X.ravel(), H.ravel()
-        self.bxmin_f, self.bxmax_f, self.bhmax_f = self.bxmin.ravel(), self.bxmax.ravel(), self.bhmax.ravel()
 
 
 def _levels(g: _Geometry, o, j, t, dx, dh):
@@ -247,16 +308,16 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
 
 
 def _visibility_batched(g: _Geometry, bm: dict):
-    """``_visibility`` on batches of beams whose ``[beam, bucket]`` work arrays hold at most ``_VIS_ELEMS``
-    elements (every beam is independent; the concatenated result equals one call on all beams)."""
+    """``_visibility`` (or ``_visibility_scan`` for small profiles) on batches of beams (every beam is
+    independent; the concatenated result equals one call on all beams): memory stays bounded."""
     n = bm["sample"].size
-    per_beam = -(-g.P // g.bucket) + g.G + 4
-    step = max(1, _VIS_ELEMS // per_beam)
+    vis = _visibility if hasattr(g, "hier") else _visibility_scan
+    step = _VIS_BEAMS if vis is _visibility else max(1, _VIS_ELEMS // (-(-g.P // g.buckets.bucket) + g.G + 4))
     if n <= step:
-        return _visibility(g, bm)
+        return vis(g, bm)
     hit_parts, esc_parts = [], []
     for a in range(0, n, step):  # a loop over batches (few)
-        h, e = _visibility(g, {k: (None if v is None else v[a:a + step]) for k, v in bm.items()})
+        h, e = vis(g, {k: (None if v is None else v[a:a + step]) for k, v in bm.items()})
         h["beam"] = h["beam"] + a
         e["beam"] = e["beam"] + a
         hit_parts.append(h)
@@ -268,11 +329,104 @@ def _visibility_batched(g: _Geometry, bm: dict):
 def _visibility(g: _Geometry, bm: dict):
     """Split each beam (leaving segment j towards +x in its frame) into sub-beams by first hit.
 
+    The rays of level ``L`` in ``(Lcur, La]`` (``Lcur`` starts at the beam's lowest level ``Lb``) first
+    hit the segment that ends at the next vertex ``v`` after ``j + 1`` whose level ``s(v)`` exceeds
+    ``Lcur`` (a new running maximum): that segment takes the levels ``(Lcur, min(s(v), La)]``, then
+    ``Lcur = s(v)``; what is left above the last maximum of one period escapes.  The next such vertex is
+    found by descending the max-level hierarchy ``_Hierarchy``: ``O(log P)``
+    steps per hit instead of a scan of the whole period, all beams advanced together.
+
+    Returns ``hits`` (dict: beam, o, seg, shift, t0, t1, width, P0, P1 = unfolded edge points of
+    the t0 / t1 edges) and ``escapes`` (dict: beam, width, Plo, Phi).
+    """
+    P, L = g.P, g.X.shape[1]
+    hy = g.hier
+    o, dx, dh, La, Lb = bm["o"], bm["dx"], bm["dh"], bm["La"], bm["Lb"]
+    v0 = (bm["j"] + 1).astype(np.int64)
+    Pcur = bm["Plo"].copy()  # unfolded point of the vertex holding the running maximum (or the beam's edge)
+    hits, escapes = [], []
+    # state of the beams still searching, compacted: beam, level, node, current maximum Lcur
+    act = np.flatnonzero(Lb < La)  # a beam of zero width neither hits nor leaves
+    k, i = hy.ascend(np.zeros(act.size, np.int64), v0[act])
+    T = Lb[act].copy()
+    tb, adx, adh, aLa, aend = hy.table(o[act], dh[act]), dx[act], dh[act], La[act], v0[act] + P
+    off, top = hy.off, hy.top
+    while act.size:
+        fin = (i << k) > aend
+        flat = tb + off[k] + i
+        b = adx * hy.hmax[flat] - adh * hy.xsel[flat]
+        up = b > T  # the node may hold a vertex above the running maximum
+        leaf = k == 0
+        found = up & leaf & ~fin
+        down = up & ~leaf & ~fin
+        stop = fin.copy()
+        if found.any():
+            f = np.flatnonzero(found)
+            ar, v, sB, Tf, Laf = act[f], i[f], b[f], T[f], aLa[f]
+            of = o[ar]
+            seg = v > v0[ar]  # the first vertex closes the beam's own segment: only a new maximum
+            if seg.any():
+                r, vr = ar[seg], v[seg]
+                fA = of[seg] * L + vr - 1
+                sA = dx[r] * g.Hf[fA] - dh[r] * g.Xf[fA]
+                sb = sB[seg]
+                lk, hk = Tf[seg], np.minimum(sb, Laf[seg])
+                den = sb - sA
+                t0 = np.clip((lk - sA) / den, 0.0, 1.0)
+                t1 = np.clip((hk - sb) / den + 1.0, 0.0, 1.0)
+                U = (bm["R"][r], bm["tr"][r])
+                fB = fA + 1
+                p_hi = np.where((sb < Laf[seg])[:, None], _apply(U, g.Xf[fB], g.Hf[fB]), bm["Phi"][r])
+                useg = vr - 1
+                hits.append((r, o[r], useg % P, useg // P, t0, t1, hk - lk, Pcur[r], p_hi))
+            done = sB >= Laf
+            stop[f[done]] = True
+            keep = ~done
+            rk = ar[keep]
+            fk = of[keep] * L + v[keep]
+            Pcur[rk] = _apply((bm["R"][rk], bm["tr"][rk]), g.Xf[fk], g.Hf[fk])
+            T[f] = sB
+        # next node: down to the first child, or past this node (then up while it is a first child)
+        ni = i + 1
+        tz = np.minimum(((ni & -ni).astype(np.float64).view(np.int64) >> 52) - 1023, top - k)
+        k = np.where(down, k - 1, k + tz)
+        i = np.where(down, i << 1, ni >> tz)
+        if stop.any():
+            ge = act[fin]
+            escapes.append((ge, La[ge] - T[fin], Pcur[ge]))
+            live = ~stop
+            act, k, i, T = act[live], k[live], i[live], T[live]
+            tb, adx, adh, aLa, aend = tb[live], adx[live], adh[live], aLa[live], aend[live]
+    keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
+    if hits:
+        hit = {key: np.concatenate([h[q] for h in hits]) for q, key in enumerate(keys)}
+        for key in ("beam", "o", "seg", "shift"):
+            hit[key] = hit[key].astype(np.intp)
+    else:
+        hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if q < 4 else np.float64)
+               for q, key in enumerate(keys)}
+    if escapes:
+        esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
+               "width": np.concatenate([e[1] for e in escapes]),
+               "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
+    else:
+        esc = {"beam": np.zeros(0, np.intp), "width": np.zeros(0), "Plo": np.zeros((0, 2))}
+    esc["Phi"] = bm["Phi"][esc["beam"]]
+    return hit, esc
+
+
+def _visibility_scan(g: _Geometry, bm: dict):
+    """``_visibility`` by scanning the period in windows of ``G`` vertices, skipping buckets of vertices
+    whose bounding box stays below the beam (``_Buckets``): for small profiles (at most
+    ``_HIERARCHY_MIN_SEGMENTS``), where it takes fewer numpy passes than the hierarchy's descent.
+
     Returns ``hits`` (dict: beam, o, seg, shift, t0, t1, width, P0, P1 = unfolded edge points of
     the t0 / t1 edges) and ``escapes`` (dict: beam, width, Plo, Phi).
     Arrays are laid out ``[window position, beam]`` so that numpy runs along beams.
     """
-    P, B, G, L = g.P, g.bucket, g.G, g.X.shape[1]
+    P, L = g.P, g.X.shape[1]
+    bk = g.buckets
+    B, G = bk.bucket, bk.G
     o, dx, dh, La = bm["o"], bm["dx"], bm["dh"], bm["La"]
     n = o.size
     v0 = bm["j"] + 1
@@ -280,10 +434,10 @@ def _visibility(g: _Geometry, bm: dict):
     nbw = -(-P // B) + 2
     bidx = v0[:, None] // B + np.arange(nbw)[None, :]
     bstart = bidx * B
-    fb = o[:, None] * g.nbuckets + bidx
+    fb = o[:, None] * bk.nbuckets + bidx
     # upper bound of the level s over each bucket's bounding box ([beam, bucket])
     dxc, dhc = dx[:, None], dh[:, None]
-    bound = dxc * g.bhmax_f[fb] + np.maximum(-dhc * g.bxmin_f[fb], -dhc * g.bxmax_f[fb])
+    bound = dxc * bk.bhmax_f[fb] + np.maximum(-dhc * bk.bxmin_f[fb], -dhc * bk.bxmax_f[fb])
     bound[bstart >= end[:, None]] = -np.inf
     bend = bstart + B
     Lcur = bm["Lb"].copy()

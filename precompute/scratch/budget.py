@@ -31,9 +31,11 @@ MAX_SECONDS = 600.0
 #: 1.1-1.8 kB per record, more with many Fresnel components; margin included) plus 8 bytes per component
 BYTES_PER_RECORD = 2600
 BYTES_PER_RECORD_COMPONENT = 64
-#: CPU seconds per exit record, trace + integration, one thread (measured 2.2-3.2 us/record wall with two
-#: threads on the reference machine; ``bench/scratch_scale.py``)
-SECONDS_PER_RECORD = 4.5e-6
+#: CPU seconds per exit record, trace + integration, one thread (times ``brdf._record_slowdown(P)``).
+#: ``bench/out/scratch_tracer_scale_256.md`` (hierarchical visibility, 2-core machine at load 13-21): the CPU
+#: time of ``simulate`` is 1.4-1.7x what 4.5e-6 predicted (the bucket scan before it: 2.3-2.7x), hence 6.5e-6
+#: -- an upper value on an idle machine, so ``max_seconds`` refuses rather than lets a long run through
+SECONDS_PER_RECORD = 6.5e-6
 #: two threads on separate parts gain ~1.6x (the tracer is memory-bound)
 THREAD_SPEEDUP = {1: 1.0, 2: 1.6}
 #: Monte Carlo: bytes per ray in flight and CPU seconds per ray-segment intersection test
