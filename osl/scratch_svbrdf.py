@@ -104,7 +104,8 @@ class ShaderSpec:
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
     voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
     cost_off: int = 0                       # bench/scratch_cost.py only: COST_OFF stage bits (1 Voronoi, 2 footprint
-                                            # α, 4 CDF search, 8 closure set-up; table lobes), 0 in every material
+                                            # α, 4 CDF search, 8 closure set-up; table lobes; 16 no culled
+                                            # early-out), 0 in every material
 
 
 @dataclass
