@@ -33,7 +33,7 @@ Rows
   c̄(1e-4) = 8e-6 > ALPHA_CULL = 1e-6; culling starts below d = 1.25e-5)
   demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
 
-    python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3]
+    python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3] [--only osl --out scratch_cost_osl]
 """
 from __future__ import annotations
 
@@ -69,6 +69,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=129)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--only", default="", help="comma-separated substrings: keep only rows whose name has one")
+    ap.add_argument("--out", default="scratch_cost", help="table name under bench/out/ (e.g. scratch_cost_osl with "
+                                                          "--only osl: the OSL rows alone)")
     a = ap.parse_args(argv)
     if a.quick:
         a.res, a.spp, a.repeats = (64, 64), 33, 1
@@ -194,6 +196,6 @@ def main(argv: list[str]) -> int:
              f"scene ({int(a.res[0] * 1.5)}x{a.res[1]}), the torus covers ~30 % of the frame: ratios diluted by "
              f"background pixels.  Load average (1 min) during the rounds: {', '.join(f'{x:.1f}' for x in load)} "
              f"on {os.cpu_count()} cores shared with other jobs.")
-    report("scratch_cost", ["setup", "per-sample CPU ms", "ratio", "stage cost", "t(1) CPU s", f"wall s ({a.spp} spp)",
+    report(a.out, ["setup", "per-sample CPU ms", "ratio", "stage cost", "t(1) CPU s", f"wall s ({a.spp} spp)",
                             "spread"], rows, notes)
     return 0
