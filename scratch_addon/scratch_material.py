@@ -3,7 +3,8 @@
 Pipeline: ``precompute.scratch.material.validate`` (parameters) -> ``tables`` (ρ0, ρm, γ from
 ``precompute.scratch.brdf.simulate``; lobe data from ``precompute.scratch.lobes``; all cached by
 content hash) -> ``osl.scratch_svbrdf`` (specialised OSL source, tables compiled in) -> INTERNAL
-script node with UV Map and Tangent nodes and the base closure linked to its ``Base`` input, plus
+script node with UV Map and Tangent nodes, inside a node group shared by every material with the same source
+(``shader_group``: its bytecode is stored once), the base closure linked to its ``Base`` input, plus
 its node-group twin (``node_groups.scratch_svm``) for Cycles SVM, GPU and EEVEE (``render_paths``).
 """
 from __future__ import annotations
