@@ -12,6 +12,8 @@ roughness 0.2, anisotropy 0.8) of the same run.
 Rows
   baseline          SVM Glossy, Multiscatter GGX, anisotropic (node_groups/brushed.py)
   base only         the scratch material's base alone (Metallic BSDF, physical conductor, iron, roughness 0)
+  osl base only     the same base rendered with Shading System OSL (Cycles' OSL Metallic node: what a culled
+                    scratch material can cost at best on the OSL path)
   osl aniso GGX     osl/aniso_ggx.osl: the OSL twin of the baseline (what OSL itself costs)
   osl / svm N       the fig1c_scratched preset (quartic 0.4, iron, mirror base) with N layers; "osl" renders
                     the OSL shader (Shading System OSL), "svm" the same material's node-group twin (Shading
@@ -20,10 +22,18 @@ Rows
                     layer Voronoi (cell centres instead of hashed feature points), footprint α (OSL only:
                     binary [F1 <= d] at the point), slice/CDF search (bin straight from h), closure set-up
                     (untilted white lobe instead of the tilted, eq.-2-weighted one)
-  culled            4 layers at density 1e-4: c̄(d) < ALPHA_CULL, every layer culled at this footprint
+  culled            4 layers at density 1e-5: c̄(d) < ALPHA_CULL, every layer culled at this footprint (OSL: the
+                    shader returns the base closure before any scratch work, osl/scratch_svbrdf.osl)
+  - early-out       (OSL, culled row) without the shader's early return of the base closure when every layer is
+                    culled at the footprint (it then runs the frame, random numbers and α of every layer first)
+  footprint α off   also switches the far-field shortcut off (α_k = c̄(d) without per-layer work where the
+                    footprint spans many cells: the whole sphere here), so every layer runs the Voronoi loop: its
+                    negative "stage cost" is what the far-field shortcut saves
+  (density 1e-4, the previous "culled" row, was not culled: c̄ is interpolated linearly in a table of step 0.025,
+  c̄(1e-4) = 8e-6 > ALPHA_CULL = 1e-6; culling starts below d = 1.25e-5)
   demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
 
-    python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3]
+    python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3] [--only osl --out scratch_cost_osl]
 """
 from __future__ import annotations
 
@@ -59,6 +69,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=129)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--only", default="", help="comma-separated substrings: keep only rows whose name has one")
+    ap.add_argument("--out", default="scratch_cost", help="table name under bench/out/ (e.g. scratch_cost_osl with "
+                                                          "--only osl: the OSL rows alone)")
     a = ap.parse_args(argv)
     if a.quick:
         a.res, a.spp, a.repeats = (64, 64), 33, 1
@@ -103,6 +115,7 @@ def main(argv: list[str]) -> int:
     # (name, material factory, OSL shading system, scene)
     setups = [("baseline: SVM aniso Glossy (MS GGX)", baseline, False, "frame"),
               ("base only (Metallic, iron)", base_only, False, "frame"),
+              ("osl base only (Metallic, iron)", base_only, True, "frame"),
               ("osl aniso GGX (osl/aniso_ggx.osl)", osl_aniso, True, "frame")]
     counts = (4,) if a.quick else (4, 16)
     for path, osl in (("osl", True), ("svm", False)):
@@ -111,7 +124,10 @@ def main(argv: list[str]) -> int:
             if path == "svm" and bit == 2:
                 continue  # the SVM twin has no footprint (binary α)
             setups.append((f"{path} 4 layers - {stage}", scratch(4, cost_off=bit), osl, "frame"))
-        setups.append((f"{path} 4 layers, all culled (d = 1e-4)", scratch(4, density=1e-4), osl, "frame"))
+        setups.append((f"{path} 4 layers, all culled (d = 1e-5)", scratch(4, density=1e-5), osl, "frame"))
+        if osl:
+            setups.append((f"{path} 4 layers, all culled (d = 1e-5) - early-out", scratch(4, cost_off=16, density=1e-5),
+                           osl, "frame"))
     setups += [("demo scene: baseline", baseline, False, "demo"),
                ("demo scene: osl 4 layers", scratch(4), True, "demo"),
                ("demo scene: svm 4 layers", scratch(4), False, "demo")]
@@ -180,6 +196,6 @@ def main(argv: list[str]) -> int:
              f"scene ({int(a.res[0] * 1.5)}x{a.res[1]}), the torus covers ~30 % of the frame: ratios diluted by "
              f"background pixels.  Load average (1 min) during the rounds: {', '.join(f'{x:.1f}' for x in load)} "
              f"on {os.cpu_count()} cores shared with other jobs.")
-    report("scratch_cost", ["setup", "per-sample CPU ms", "ratio", "stage cost", "t(1) CPU s", f"wall s ({a.spp} spp)",
+    report(a.out, ["setup", "per-sample CPU ms", "ratio", "stage cost", "t(1) CPU s", f"wall s ({a.spp} spp)",
                             "spread"], rows, notes)
     return 0

@@ -5,9 +5,14 @@ repeat of a preset with another tint (so materials that share tables differ only
 Measured in one process, interleaved with the same grid under one plain Glossy material (baseline):
 
   OSL text MB     total size of the distinct OSL texts the materials hold (Text datablocks)
-  .blend MB       the saved file (default save, no compression) minus the baseline grid's file
+  bytecode copies compiled script nodes in the file (each stores its bytecode: ~1 MB per scratch shader);
+                  one per distinct shader since the script node lives in a shared group (scratch_material.shader_group)
+  .blend MB       the saved file (default save: zstd-compressed) minus the baseline grid's file
   sync s          t(1 spp, 64x64, OSL) - t(baseline): the per-frame cost of syncing / compiling the materials
-  svm sync s      the same with Shading System SVM (the node-group twins)
+                  (every render is a new Cycles session: Cycles optimises and JIT-compiles one OSL group per material)
+  persistent s    the same with Render > Performance > Persistent Data on, after a first render (an animation's
+                  later frames): what re-syncing costs when Cycles keeps its session
+  svm sync s      the same as sync s with Shading System SVM (the node-group twins)
 
     python -m bench scratch_scale [--counts 20 100] [--repeats 3]
 """
@@ -63,7 +68,7 @@ def main(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     bpy, api, materials, presets, render = _modules()
     tmp = tempfile.mkdtemp(prefix="bench_scratch_scale_")
-    rows = []
+    rows, loads = [], []
     for n in a.counts:
         sizes, t = {}, {}
         for scratch in (False, True):
@@ -75,6 +80,8 @@ def main(argv: list[str]) -> int:
                 texts = {tx.as_string() for tx in bpy.data.texts if tx.name.endswith(".osl")}
                 text_mb = sum(len(s) for s in texts) / 1e6
                 n_texts = len(texts)
+                trees = [m.node_tree for m in bpy.data.materials if m.node_tree] + list(bpy.data.node_groups)
+                n_bytecode = sum(1 for tr in trees for nd in tr.nodes if nd.bl_idname == "ShaderNodeScript" and nd.bytecode)
             for osl in (True, False):
                 render.configure_cycles(scene, samples=1, res=(64, 64), osl=osl)
                 render.render_array(scene, tmp, "warm")   # first render: compile caches warm
@@ -84,12 +91,23 @@ def main(argv: list[str]) -> int:
                 for osl in (True, False):
                     scene.cycles.shading_system = osl
                     t[(scratch, osl)].append(render.render_array(scene, tmp, "scale")[1])
+            # Persistent Data (OSL): Cycles keeps its session between renders and re-syncs what changed
+            scene.cycles.shading_system = True
+            scene.render.use_persistent_data = True
+            render.render_array(scene, tmp, "warm")
+            t[(scratch, "persistent")] = [render.render_array(scene, tmp, "scale")[1] for _ in range(a.repeats)]
+            scene.render.use_persistent_data = False
         med = {k: statistics.median(v) for k, v in t.items()}
-        rows.append((n, n_texts, text_mb, sizes[True] - sizes[False], med[(True, True)] - med[(False, True)],
+        rows.append((n, n_texts, text_mb, n_bytecode, sizes[True] - sizes[False],
+                     med[(True, True)] - med[(False, True)],
+                     med[(True, "persistent")] - med[(False, "persistent")],
                      med[(True, False)] - med[(False, False)], med[(False, True)]))
-    report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", ".blend MB added", "OSL sync s added",
-                             "SVM sync s added", "baseline t(1 spp) s"], rows,
+        loads.append(os.getloadavg()[0])
+    report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", "bytecode copies", ".blend MB added",
+                             "OSL sync s added", "OSL persistent s added", "SVM sync s added", "baseline t(1 spp) s"],
+           rows,
            f"Grid of N planes, the 10 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
-           f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation); load "
-           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.")
+           f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation); load (1 min) "
+           f"after each grid size {', '.join(f'{x:.1f}' for x in loads)} on {os.cpu_count()} cores shared with other "
+           "jobs (wall times: the OSL JIT runs on every core, so the sync columns grow with the load).")
     return 0

@@ -42,6 +42,20 @@ from ..precompute.scratch import layers as layers_mod, material
 from ..precompute.scratch.material import ScratchParams
 from . import const_array, specialise
 
+def _const(name: str, values, ctype: str = "float") -> str:
+    """``const_array`` of the values rounded to float32 first (what OSL compiles them to): the text depends only
+    on the float32 values, so the same tables give the same text whether they were computed (float64) or read
+    back from the table cache (float32), and materials share one Text / shader group (issue 15 item 5)."""
+    if ctype == "float":
+        values = np.asarray(values, np.float32).ravel()
+    return const_array(name, values, ctype)
+
+
+def _f32(x) -> float:
+    """``x`` rounded to float32 (a ``#define`` value; see ``_const``)."""
+    return float(np.float32(x))
+
+
 #: Above this many layers, one layer is picked per shading point (probability α_k / ᾱ) so the
 #: closure count stays constant; at or below it every layer is summed.
 MAX_SUMMED_LAYERS = 2
@@ -104,7 +118,8 @@ class ShaderSpec:
     table: "TableLobes | None" = None       # tabulated-tilt lobes instead of lobes_m / lobes_0
     voronoi_int2: bool = True               # Cycles' Voronoi hash API: int2 cells (Blender >= 5.0) or floats (4.x)
     cost_off: int = 0                       # bench/scratch_cost.py only: COST_OFF stage bits (1 Voronoi, 2 footprint
-                                            # α, 4 CDF search, 8 closure set-up; table lobes), 0 in every material
+                                            # α, 4 CDF search, 8 closure set-up; table lobes; 16 no culled
+                                            # early-out), 0 in every material
 
 
 @dataclass
@@ -161,24 +176,24 @@ class TableLobes:
 
 def _table_arrays(t: TableLobes) -> str:
     prob, alias = t.alias()
-    out = (const_array("TB_PHI", t.phi) + const_array("TB_CELL", t.cell, "int")
-           + const_array("TB_AP", prob.ravel()) + const_array("TB_AI", alias.ravel(), "int")
-           + const_array("TB_TOT", t.total) + const_array("TB_CEN", t.cen.ravel()))
+    out = (_const("TB_PHI", t.phi) + _const("TB_CELL", t.cell, "int")
+           + _const("TB_AP", prob.ravel()) + _const("TB_AI", alias.ravel(), "int")
+           + _const("TB_TOT", t.total) + _const("TB_CEN", t.cen.ravel()))
     if not t.lossless:
-        out += const_array("TB_Y", t.coef.ravel()) + const_array("TB_B", t.basis.ravel())
+        out += _const("TB_Y", t.coef.ravel()) + _const("TB_B", t.basis.ravel())
     return out
 
 
 def _lobe_arrays(prefix: str, t: LobeTable, jittered: bool = False) -> str:
     dist = np.zeros(len(t.tilt), int) if t.dist is None else np.asarray(t.dist, int)
     jit = np.zeros(len(t.tilt)) if t.jitter is None else np.asarray(t.jitter, float)
-    return (const_array(f"{prefix}_START", t.start, "int")
-            + const_array(f"{prefix}_DIST", dist, "int")
-            + const_array(f"{prefix}_TILT", t.tilt)
-            + const_array(f"{prefix}_AY", t.width)
-            + const_array(f"{prefix}_W", t.weight.ravel())
-            + const_array(f"{prefix}_GAMMA", t.gamma)
-            + (const_array(f"{prefix}_JIT", jit) if jittered else ""))
+    return (_const(f"{prefix}_START", t.start, "int")
+            + _const(f"{prefix}_DIST", dist, "int")
+            + _const(f"{prefix}_TILT", t.tilt)
+            + _const(f"{prefix}_AY", t.width)
+            + _const(f"{prefix}_W", t.weight.ravel())
+            + _const(f"{prefix}_GAMMA", t.gamma)
+            + (_const(f"{prefix}_JIT", jit) if jittered else ""))
 
 
 def generate(spec: ShaderSpec) -> str:
@@ -207,7 +222,7 @@ def generate(spec: ShaderSpec) -> str:
         strata = tab.strata if spec.lobe_mode == "all" else 1
         if not (isinstance(strata, (int, np.integer)) and 1 <= strata <= 64):
             raise ValueError(f"table strata must be an integer in [1, 64]; got {strata!r}")
-        flags.update(LOBE_SUM=False, JITTERED=False, MS=ms, AX=spec.alpha_x, MB=tab.n_bins, AY_TB=tab.alpha_y,
+        flags.update(LOBE_SUM=False, JITTERED=False, MS=ms, AX=_f32(spec.alpha_x), MB=tab.n_bins, AY_TB=_f32(tab.alpha_y),
                      TK=int(strata), NS=tab.n_slices, NG=int(tab.cell.size),
                      KY=0 if tab.lossless else int(tab.basis.shape[0]),
                      NT=2 if tab.lossless else int(tab.basis.shape[1]), YG=int(tab.y_group))
@@ -218,7 +233,7 @@ def generate(spec: ShaderSpec) -> str:
             per_slice += int(np.diff(spec.lobes_0.start).max(initial=0))
         # tilt jitter (stochastic box lobes, precompute.scratch.lobe_fit): only compiled when a lobe has one
         jittered = spec.lobes_m.jittered or (not lossless and spec.lobes_0.jittered)
-        flags.update(LOBE_SUM=spec.lobe_mode == "all", JITTERED=jittered, MS=ms, AX=spec.alpha_x,
+        flags.update(LOBE_SUM=spec.lobe_mode == "all", JITTERED=jittered, MS=ms, AX=_f32(spec.alpha_x),
                      KMAX2=max(per_slice, 1))
         tables = [_lobe_arrays("LM", spec.lobes_m, jittered)]
         if not lossless:
@@ -236,8 +251,8 @@ def generate(spec: ShaderSpec) -> str:
 
 def _layer_arrays(spec) -> str:
     """THETA_K, XI_K, COV and COV_DMAX of a layered ``ShaderSpec`` / ``ReferenceSpec``."""
-    return (const_array("THETA_K", spec.theta_k) + const_array("XI_K", np.asarray(spec.xi_k).ravel())
-            + const_array("COV", spec.coverage) + f"    float COV_DMAX = {spec.coverage_dmax:.9g};\n")
+    return (_const("THETA_K", spec.theta_k) + _const("XI_K", np.asarray(spec.xi_k).ravel())
+            + _const("COV", spec.coverage) + f"    float COV_DMAX = {_f32(spec.coverage_dmax):.9g};\n")
 
 
 # --- reference mode ------------------------------------------------------------------------------
@@ -283,9 +298,9 @@ def generate_reference(spec: ReferenceSpec) -> str:
     layered = spec.layers is not None
     flags = dict(SHADER_NAME=spec.name, LAYERS=layered, NL=spec.layers.n_layers if layered else 1,
                  USE_BASE=spec.use_base and layered, MT=M)
-    tables = [const_array("RHO_M", rho_m.ravel()) + const_array("RHO_0", rho0.ravel())
-              + const_array("GAM", gamma.ravel()) + const_array("CDF", cdf.ravel()) + const_array("TOTAL", total)
-              + const_array("EDGE_SIN", np.sin(edges))]
+    tables = [_const("RHO_M", rho_m.ravel()) + _const("RHO_0", rho0.ravel())
+              + _const("GAM", gamma.ravel()) + _const("CDF", cdf.ravel()) + _const("TOTAL", total)
+              + _const("EDGE_SIN", np.sin(edges))]
     if layered:
         lp = spec.layers
         flags.update(LAYER_LENGTH=float(lp.length), LAYER_WIDTH=float(lp.width), LAYER_DENSITY=float(lp.density))

@@ -182,4 +182,6 @@ def render(out: str, samples: int = 32, res=(320, 240), seed: int = 0, osl: bool
 
 def _uses_osl(scene) -> bool:
     """True if a material in the scene has an OSL script node (the scratch materials do)."""
-    return any(n.bl_idname == "ShaderNodeScript" for m in bpy.data.materials if m.node_tree for n in m.node_tree.nodes)
+    from . import render_paths
+
+    return any(render_paths.has_osl(m) for m in bpy.data.materials if m.node_tree)

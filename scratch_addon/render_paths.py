@@ -77,9 +77,11 @@ def link_surface(tree, svm_socket, osl_socket=None, out=None, eevee: bool = True
 
 
 def has_osl(material) -> bool:
-    """True if the material holds an OSL script node."""
+    """True if the material holds an OSL script node (or a node group holding one: the scratch shader's)."""
     tree = material.node_tree
-    return tree is not None and any(n.bl_idname == "ShaderNodeScript" for n in tree.nodes)
+    return tree is not None and any(n.bl_idname == "ShaderNodeScript" or (
+        n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None
+        and any(m.bl_idname == "ShaderNodeScript" for m in n.node_tree.nodes)) for n in tree.nodes)
 
 
 def describe(material, scene) -> tuple[str, str]:

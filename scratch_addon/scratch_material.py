@@ -3,7 +3,8 @@
 Pipeline: ``precompute.scratch.material.validate`` (parameters) -> ``tables`` (ρ0, ρm, γ from
 ``precompute.scratch.brdf.simulate``; lobe data from ``precompute.scratch.lobes``; all cached by
 content hash) -> ``osl.scratch_svbrdf`` (specialised OSL source, tables compiled in) -> INTERNAL
-script node with UV Map and Tangent nodes and the base closure linked to its ``Base`` input, plus
+script node with UV Map and Tangent nodes, inside a node group shared by every material with the same source
+(``shader_group``: its bytecode is stored once), the base closure linked to its ``Base`` input, plus
 its node-group twin (``node_groups.scratch_svm``) for Cycles SVM, GPU and EEVEE (``render_paths``).
 """
 from __future__ import annotations
@@ -189,18 +190,11 @@ def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes
     if src is not None:
         # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
         # and density) share it
-        script = osl_compile.script_node_from_source(tree, shader_text_name(src), src)
-        _remember_bytecode(src, script)
-        script.name = SCRIPT_NODE_NAME
+        # and its compiled script node (bytecode): one shared node group per text (shader_group)
+        script = tree.nodes.new("ShaderNodeGroup")
+        script.node_tree = shader_group(src)
+        script.name = script.label = SCRIPT_NODE_NAME
         script.location = (200, 300)
-        uv = tree.nodes.new("ShaderNodeUVMap")
-        uv.location = (-200, 400)
-        tangent = tree.nodes.new("ShaderNodeTangent")
-        tangent.direction_type = "UV_MAP"
-        tangent.location = (-200, 250)
-        if "UV" in script.inputs:
-            tree.links.new(uv.outputs["UV"], script.inputs["UV"])
-        tree.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
         values = _control_values(params)
         for sock in scratch_controls.CONTROLS:  # one socket drives the OSL input and the twins' math
             if sock.osl and sock.osl in script.inputs and sock.prop in values:
@@ -355,10 +349,89 @@ def shader_text_name(src: str) -> str:
     return f"scratch_svbrdf.{hashlib.sha1(src.encode()).hexdigest()[:12]}.osl"
 
 
+#: name prefix of the shared node groups holding one compiled scratch shader (``shader_group``)
+SHADER_GROUP_PREFIX = "Scratch OSL "
+
+
+def shader_group_name(src: str) -> str:
+    """Name of the node group holding ``src``'s script node (the content hash of ``shader_text_name``)."""
+    return SHADER_GROUP_PREFIX + hashlib.sha1(src.encode()).hexdigest()[:12]
+
+
+def shader_group(src: str) -> bpy.types.ShaderNodeTree:
+    """The node group of the OSL source ``src``, shared by every material with this shader (issue 15 item 5).
+
+    A script node stores its compiled bytecode (~1 MB for a scratch shader: the tables are constants in it) and a
+    .blend held one copy per material; inside one group per distinct source it is stored once.  The group holds
+    the UV Map and UV Tangent nodes (they make Cycles export the attributes) and the script node; its inputs are
+    the script's other inputs (Base, Length, Width, Density, Tint: the per-material values), its outputs BSDF and
+    Alpha.  Cycles flattens groups when it syncs: each material still compiles its own OSL shader group.
+    Compiled on creation (``osl_compile.OSLCompileError`` on failure, nothing left behind)."""
+    from ..node_groups import add_socket
+
+    name = shader_group_name(src)
+    group = bpy.data.node_groups.get(name)
+    if group is not None and any(n.bl_idname == "ShaderNodeScript" and n.bytecode for n in group.nodes):
+        return group
+    if group is not None:   # an incomplete group of that name: build it again
+        bpy.data.node_groups.remove(group)
+    text_name = shader_text_name(src)
+    text_existed = bpy.data.texts.get(text_name) is not None
+    group = bpy.data.node_groups.new(name, "ShaderNodeTree")
+    try:
+        script = osl_compile.script_node_from_source(group, text_name, src)
+    except BaseException:
+        bpy.data.node_groups.remove(group)
+        text = bpy.data.texts.get(text_name)
+        if text is not None and not text_existed and text.users == 0:
+            bpy.data.texts.remove(text)
+        raise
+    script.name = script.label = SCRIPT_NODE_NAME
+    script.location = (200, 0)
+    uv = group.nodes.new("ShaderNodeUVMap")
+    uv.location = (-100, 150)
+    tangent = group.nodes.new("ShaderNodeTangent")
+    tangent.direction_type = "UV_MAP"
+    tangent.location = (-100, 0)
+    if "UV" in script.inputs:
+        group.links.new(uv.outputs["UV"], script.inputs["UV"])
+    group.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
+    gin = group.nodes.new("NodeGroupInput")
+    gin.location = (-300, -200)
+    gout = group.nodes.new("NodeGroupOutput")
+    gout.location = (450, 0)
+    kinds = {"SHADER": "NodeSocketShader", "RGBA": "NodeSocketColor", "VALUE": "NodeSocketFloat",
+             "VECTOR": "NodeSocketVector", "INT": "NodeSocketInt"}
+    for sock in script.inputs:
+        if sock.name in ("UV", "Tangent"):
+            continue
+        item = add_socket(group, sock.name, "INPUT", kinds.get(sock.type, "NodeSocketFloat"))
+        if hasattr(sock, "default_value") and hasattr(item, "default_value"):
+            value = sock.default_value
+            item.default_value = value if isinstance(value, (int, float)) else tuple(value)
+        group.links.new(gin.outputs[sock.name], sock)
+    for sock in script.outputs:
+        add_socket(group, sock.name, "OUTPUT", kinds.get(sock.type, "NodeSocketFloat"))
+        group.links.new(sock, gout.inputs[sock.name])
+    return group
+
+
+def script_node(material):
+    """The compiled ``ShaderNodeScript`` of a scratch material (inside its shared ``shader_group``; a material
+    built before the shared groups holds it directly), or None."""
+    node = scratch_script(material)
+    if node is None or node.bl_idname == "ShaderNodeScript":
+        return node
+    return next((n for n in node.node_tree.nodes if n.bl_idname == "ShaderNodeScript"), None)
+
+
 def _set_source(node, src: str) -> None:
     """Point the INTERNAL script of ``node`` at the (shared) Text of ``src`` and compile it (bytecode reused for
     a source seen before); a Text other materials use is never rewritten.  On a compile error the node keeps
-    its text and bytecode."""
+    its text and bytecode.  A group node (``shader_group``) is repointed at the group of ``src`` instead."""
+    if node.bl_idname == "ShaderNodeGroup":
+        node.node_tree = shader_group(src)
+        return
     key = _source_key(src)
     old = (node.script, node.bytecode, node.bytecode_hash)
     name = shader_text_name(src)
@@ -429,8 +502,11 @@ class NeedsRebuild(Exception):
 
 
 def scratch_script(material):
-    """The scratch shader's script node in ``material`` or None."""
+    """The scratch shader's node in ``material`` (the group node of its ``shader_group``; the script node itself
+    in a material built before the shared groups) or None."""
     def ours(n):
+        if n is not None and n.bl_idname == "ShaderNodeGroup":
+            return n.node_tree is not None and n.node_tree.name.startswith(SHADER_GROUP_PREFIX)
         return (n is not None and n.bl_idname == "ShaderNodeScript" and n.script is not None
                 and n.script.name.startswith("scratch_svbrdf."))
     node = material.node_tree.nodes.get(SCRIPT_NODE_NAME)

@@ -99,8 +99,20 @@ def _links(tree) -> set:
 
 
 #: name prefixes of the datablocks builders share between materials by content hash
-#: (``scratch_material.shader_text_name``, ``node_groups.scratch_svm.table_images``)
-SHARED_PREFIXES = ("scratch_svbrdf.", "Scratch table ")
+#: (``scratch_material.shader_text_name``, ``node_groups.scratch_svm.table_images``, ``scratch_material.shader_group``)
+SHARED_PREFIXES = ("scratch_svbrdf.", "Scratch table ", "Scratch OSL ")
+
+
+def _shared_used(n) -> list:
+    """The shared datablocks node ``n`` uses: its Text or Image, or a shared shader group and the Text in it
+    (group first: dropping it can leave the Text unused)."""
+    if n.bl_idname == "ShaderNodeScript":
+        return [n.script]
+    if n.bl_idname == "ShaderNodeTexImage":
+        return [n.image]
+    if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and n.node_tree.name.startswith(SHARED_PREFIXES):
+        return [n.node_tree] + [m.script for m in n.node_tree.nodes if m.bl_idname == "ShaderNodeScript"]
+    return []
 
 
 def _owned(material, nodes) -> list:
@@ -153,9 +165,7 @@ class _State:
         self.scripts = {n.as_pointer(): (n.script.as_string(), n.bytecode, n.bytecode_hash, n.script)
                         for n in self.nodes if n.bl_idname == "ShaderNodeScript" and n.script is not None}
         # shared, content-hashed datablocks the nodes use now (dropped at commit when nothing uses them any more)
-        self.shared = [db for n in self.nodes for db in (getattr(n, "script", None) if n.bl_idname == "ShaderNodeScript"
-                                                          else getattr(n, "image", None) if n.bl_idname == "ShaderNodeTexImage"
-                                                          else None,)
+        self.shared = [db for n in self.nodes for db in _shared_used(n)
                        if db is not None and db.name.startswith(SHARED_PREFIXES)]
         self.links = _links(self.tree)
         self.owned = [(db, db.name) for db in _owned(material, self.nodes)] if replace else []
@@ -224,6 +234,8 @@ class _State:
 
     @staticmethod
     def _collection(db):
+        if isinstance(db, bpy.types.NodeTree):
+            return bpy.data.node_groups
         return bpy.data.texts if isinstance(db, bpy.types.Text) else bpy.data.images
 
     @staticmethod

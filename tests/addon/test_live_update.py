@@ -28,7 +28,7 @@ def _image_hash(img) -> str:
 def _snapshot(mat) -> dict:
     """What a rebuild or a table update would change."""
     tree = mat.node_tree
-    script = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeScript")
+    script = _script_node(mat)
     return {"nodes": sorted(n.as_pointer() for n in tree.nodes), "links": len(tree.links),
             "text": hashlib.sha1(script.script.as_string().encode()).hexdigest(), "bytecode": script.bytecode_hash,
             "C": _tables_hash(tree, ("N", "A", "C")), "B": _tables_hash(tree, ("Y", "Btheta"))}
@@ -56,7 +56,15 @@ def mat(addon, scene):
 
 
 def _script(mat):
-    return next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript")
+    """The scratch shader's node in the material (the group node of its shared shader group)."""
+    return mat.node_tree.nodes["Scratch Shader"]
+
+
+def _script_node(mat):
+    """The compiled script node (inside the shared group: scratch_material.shader_group)."""
+    node = _script(mat)
+    return node if node.bl_idname == "ShaderNodeScript" else \
+        next(n for n in node.node_tree.nodes if n.bl_idname == "ShaderNodeScript")
 
 
 SOCKET_EDITS = [("length", 0.05, "Length"), ("width", 3e-4, "Width"), ("density", 0.25, "Density"),
@@ -68,7 +76,7 @@ def test_socket_setting_writes_its_socket_only(addon, mat, prop, value, socket):
     tree = mat.node_tree
     controls = tree.nodes["Scratch Controls"]
     before = _snapshot(mat)
-    others = {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.bl_idname != "ShaderNodeScript"}
+    others = {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.name != "Scratch Shader"}
     key = mat["scratch_live_table_key"]
     setattr(mat.scratch, prop, value)
     got = controls.inputs[socket].default_value
@@ -79,10 +87,10 @@ def test_socket_setting_writes_its_socket_only(addon, mat, prop, value, socket):
     assert script.inputs[socket].is_linked and script.inputs[socket].links[0].from_node == controls
     assert np.allclose(np.atleast_1d(script.inputs[socket].default_value)[:want.size], want, rtol=1e-6)
     # ... and so does the SVM twin: some of its nodes read the controls output
-    assert any(lk.from_node == controls and lk.to_node.bl_idname != "ShaderNodeScript"
+    assert any(lk.from_node == controls and lk.to_node.name != "Scratch Shader"
                for lk in controls.outputs[socket].links)
     assert _snapshot(mat) == before, "a socket edit must not rebuild, recompile or touch the tables"
-    assert {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.bl_idname != "ShaderNodeScript"} == others
+    assert {n.as_pointer(): _inputs(n) for n in tree.nodes if n != controls and n.name != "Scratch Shader"} == others
     assert mat["scratch_live_table_key"] == key
 
 
@@ -129,7 +137,7 @@ def test_structure_setting_rebuilds(addon, mat):
     tree = mat.node_tree
     assert addon.live.last_update()["kind"] == "rebuild"
     assert sum(n.bl_idname == "ShaderNodeTexVoronoi" for n in tree.nodes) == 3
-    assert "#define NL 3" in _script(mat).script.as_string() or "NL 3" in _script(mat).script.as_string()
+    assert "#define NL 3" in _script_node(mat).script.as_string() or "NL 3" in _script_node(mat).script.as_string()
     assert tree.nodes["Scratch Controls"].inputs["Density"].default_value == pytest.approx(mat.scratch.density)
 
 

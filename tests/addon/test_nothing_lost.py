@@ -148,7 +148,7 @@ def built(addon, scene):
     val = mat.node_tree.nodes.new("ShaderNodeValue")
     val.name = "user value"
     val.outputs[0].default_value = 0.25
-    script = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript")
+    script = mat.node_tree.nodes["Scratch Shader"]   # the group node of the shared shader group
     script.inputs["Tint"].default_value = (0.5, 0.6, 0.7, 1.0) if len(script.inputs["Tint"].default_value) == 4 \
         else (0.5, 0.6, 0.7)
     return mat
@@ -250,9 +250,11 @@ def test_successful_rebuild_equals_a_fresh_build(addon, built):
         pytest.fail(f"rebuild differs from a fresh build at ...{a[max(0, i - 200):i + 100]}...", pytrace=False)
     leftovers = [db.name for c in ("texts", "images") for db in getattr(bpy.data, c) if "~rebuild" in db.name]
     assert not leftovers and not [n.name for n in built.node_tree.nodes if "~rebuild" in n.name]
-    # the same settings make the same shader: one shared Text (content-hashed), the replaced one removed
-    scripts = [n.script for m in (built, fresh) for n in m.node_tree.nodes if n.bl_idname == "ShaderNodeScript"]
-    assert len(scripts) == 2 and scripts[0] == scripts[1]
+    # the same settings make the same shader: one shared group and Text (content-hashed), the replaced ones removed
+    groups = [m.node_tree.nodes["Scratch Shader"].node_tree for m in (built, fresh)]
+    assert groups[0] == groups[1] and groups[0].name.startswith("Scratch OSL ")
+    assert [g.name for g in bpy.data.node_groups if g.name.startswith("Scratch OSL ")] == [groups[0].name]
+    scripts = [n.script for n in groups[0].nodes if n.bl_idname == "ShaderNodeScript"]
     assert [t.name for t in bpy.data.texts] == [scripts[0].name] and scripts[0].name.startswith("scratch_svbrdf.")
 
 

@@ -27,11 +27,11 @@ def test_add_scratch_preset_then_update(addon, scene):
     assert mat["scratch_addon_kind"] == "scratch_svbrdf" and not scene.cycles.shading_system
     s = mat.scratch
     assert (s.profile_type, s.n_layers, s.fresnel_type, s.metal) == ("quartic", 4, "metal", "iron")
-    src_before = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    src_before = addon.scratch_material.script_node(mat).script.as_string()
     s.n_layers, s.resolution = 1, "64"
     with bpy.context.temp_override(material=mat):
         assert bpy.ops.scratch.update_material() == {"FINISHED"}
-    src_after = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    src_after = addon.scratch_material.script_node(mat).script.as_string()
     assert "#define NL 4" in src_before and "#define NL 1" in src_after
 
 
@@ -95,13 +95,13 @@ def test_lobe_shape_from_the_panel_builds_table_lobes(addon, scene):
     mat = obj.active_material
     s = mat.scratch
     assert s.lobe_shape == "table"
-    src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    src = addon.scratch_material.script_node(mat).script.as_string()
     assert "#define LOBE_TABLE 1" in src   # tabulated-tilt lobes compiled (osl/scratch_svbrdf.osl)
     assert mat["scratch_addon_fit_error"] < 0.03
     s.lobe_shape, s.resolution = "fit", "64"
     with bpy.context.temp_override(material=mat):
         assert bpy.ops.scratch.update_material() == {"FINISHED"}
-    src = next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeScript").script.as_string()
+    src = addon.scratch_material.script_node(mat).script.as_string()
     assert "#define LOBE_TABLE 0" in src and "#define LOBE_SUM 0" in src   # one picked fitted lobe
     assert mat.scratch.to_params()["lobe_shape"] == "fit"
     mat.scratch.from_params({"box_lobes": True})        # settings stored before lobe_shape existed
