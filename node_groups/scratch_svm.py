@@ -32,6 +32,11 @@ _PI = math.pi
 TABLE_GLOSSY = "scratch_table_glossy"
 #: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
 LAYER_CONST = "scratch_layer_const"
+#: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, as ``osl.scratch_svbrdf.ALPHA_CULL``) below this
+#: density: the mean coverage of [F1 <= d] is c̄(d) = π d² for small d (one feature point per unit cell; exact as
+#: d -> 0, 2 % high at d = 0.1 against ``precompute.scratch.layers.mean_coverage``), so c̄(d) < 1e-6 for
+#: d < sqrt(1e-6 / π) = 5.6e-4.  The SVM path has no footprint: it culls wherever the OSL path's far field would.
+CULL_DENSITY = math.sqrt(1e-6 / math.pi)
 #: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
 TABLE_IMAGE_PREFIX = "Scratch table "
 
@@ -253,7 +258,18 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     if base_socket is not None:
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
-    return mixs.outputs[0]
+    if dens is None and float(layers.density) >= CULL_DENSITY:
+        return mixs.outputs[0]
+    # layer culling (§6.1): every layer's mean coverage c̄(d) < ALPHA_CULL below d = CULL_DENSITY.  A Mix
+    # Shader with factor [d >= CULL_DENSITY] puts the whole layer system (Voronoi, lookups, closure) behind
+    # Cycles' jump (SVMCompiler::generate_multi_closure skips the nodes only one branch uses): a culled
+    # material runs the base alone, and a constant factor folds the switch away at sync.
+    gate = g.node("ShaderNodeMixShader")
+    g._set(gate.inputs["Fac"], 0.0 if dens is None else g.math("GREATER_THAN", dens, CULL_DENSITY))
+    if base_socket is not None:
+        tree.links.new(base_socket, gate.inputs[1])
+    tree.links.new(mixs.outputs[0], gate.inputs[2])
+    return gate.outputs[0]
 
 
 def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None) -> bpy.types.NodeSocket:
@@ -369,8 +385,9 @@ def table_images(name: str, lobe_data: dict) -> dict:
     - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j, G = alias_j;
     - ``C`` [S, M] (rows = φo nodes): G = the node's total P, B = the aim code of the bin (exit centroid + 2 for
       even bounces), A = the node's φ;
-    - lossy only: ``Y`` [S, K M / y_group] RGB = the θo coefficients (column g K + k for bin group g,
-      function k) and ``B`` [K, NT] RGB = the θo basis (read with Linear interpolation along v).
+    - lossy only: ``Y`` [S, NT M / y_group] RGB = the θo factor Y_g(v) = Σ_k coef_gk B_k(v) pre-summed over the
+      K basis functions (column g NT + t for bin group g at v sample t; read with Linear interpolation along
+      v inside a group's NT columns: one lookup where coefficients and basis took 2 K).
     Images are shared by content (``_data_image``).
     """
     from ..precompute.scratch.lobe_table import alias_table
@@ -394,14 +411,21 @@ def table_images(name: str, lobe_data: dict) -> dict:
     out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n), "A": _data_image(TABLE_IMAGE_PREFIX + "A", a),
            "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
     if lobe_data.get("basis") is not None:
-        coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
-        y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
-        y[..., :3] = coef.reshape(S, -1, 3)
-        basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
-        b = np.zeros(basis.shape[:2] + (4,))
-        b[..., :3] = basis
-        out.update(Y=_data_image(TABLE_IMAGE_PREFIX + "Y", y), B=_data_image(TABLE_IMAGE_PREFIX + "Btheta", b))
+        out["Y"] = _data_image(TABLE_IMAGE_PREFIX + "Y", theta_factor(lobe_data))
     return out
+
+
+def theta_factor(lobe_data: dict) -> np.ndarray:
+    """The θo factor of the table lobe's colour, Y_g(v_t) = Σ_k coef[s, g, k] B_k(v_t) per RGB channel
+    (``precompute.scratch.lobes.table_lobes``; v = 1 - sqrt(cos θo) on NT samples), as the RGBA rows of the
+    ``Y`` image: [S, Mg NT, 4], column g NT + t.  Linear in the basis, so a Linear lookup of it equals the
+    sum of Linear basis lookups weighted by the coefficients."""
+    coef = np.asarray(lobe_data["coef"], np.float64)                          # [S, Mg, K, 3]
+    basis = np.asarray(lobe_data["basis"], np.float64)                        # [K, NT, 3]
+    y = np.einsum("sgkc,ktc->sgtc", coef, basis)                              # [S, Mg, NT, 3]
+    out = np.zeros(y.shape[:2] + (y.shape[2], 4))
+    out[..., :3] = y
+    return out.reshape(coef.shape[0], -1, 4)
 
 
 def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint, cost_off=0):
@@ -458,20 +482,16 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     if lossless:
         colour = P
     else:
-        K, NT = lobe_data["basis"].shape[:2]
+        NT = lobe_data["basis"].shape[1]
         yg = int(lobe_data.get("y_group", 1))
-        n_cols = lobe_data["coef"].shape[1] * K
+        n_cols = lobe_data["coef"].shape[1] * NT
+        # v = 1 - sqrt(cos θo) = 1 - (1 - (wo.u)^2)^(1/4) (Cycles' power is 0 for a negative base), as a
+        # continuous column inside the bin group's NT samples: t = v (NT - 1), linear between samples
         cu = g.vmath("DOT_PRODUCT", wo, u)
-        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("MULTIPLY_ADD", cu, g.math("MULTIPLY", cu, -1.0), 1.0), 0.0))
-        bcol = g.math("MULTIPLY", g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t)), NT - 1.0)  # linear between samples
-        grp = g.math("MULTIPLY", g.math("FLOOR", g.math("DIVIDE", g.math("ADD", lo, 0.5), float(yg))), float(K))
-        Y = None
-        for jj in range(K):
-            coef = fetch(imgs["Y"], g.math("ADD", grp, float(jj)), n_cols, row).outputs["Color"]
-            basis = fetch(imgs["B"], bcol, NT, (jj + 0.5) / K, "Linear").outputs["Color"]
-            term = g.vmath("MULTIPLY", coef, basis)
-            Y = term if Y is None else g.vmath("ADD", Y, term)
-        Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
+        q = g.math("POWER", g.math("SUBTRACT", 1.0, g.math("MULTIPLY", cu, cu)), 0.25)
+        grp = g.math("FLOOR", g.math("MULTIPLY_ADD", lo, 1.0 / yg, 0.5 / yg))
+        col = g.math("MULTIPLY_ADD", grp, float(NT), g.math("MULTIPLY_ADD", q, 1.0 - NT, NT - 1.0))
+        Y = g.vmath("MAXIMUM", fetch(imgs["Y"], col, n_cols, row, "Linear").outputs["Color"], (0.0, 0.0, 0.0))
         colour = g.vmath("SCALE", Y, scale=P)
     colour = _tinted(g, colour, tint)
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x

@@ -75,8 +75,8 @@ def test_svm_table_lobes_are_packed_images_and_one_closure(addon, scene):
                     lobe_shape="table")
     nodes = mat.node_tree.nodes
     images = {n.image for n in nodes if n.bl_idname == "ShaderNodeTexImage"}
-    # N (φo cells), A (alias table), C (P, aim code, node φ); lossy: Y (θo coefficients), B (θo basis)
-    assert len(images) == 5
+    # N (φo cells), A (alias table), C (P, aim code, node φ); lossy: Y (the θo factor, basis pre-summed)
+    assert len(images) == 4
     for img in images:
         assert img.packed_file is not None and img.colorspace_settings.is_data and img.is_float
     assert sum(n.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic") for n in nodes) == 1
