@@ -238,9 +238,10 @@ def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, mat):
     consts = _layer_constants(mat)
     n = mat.scratch.n_layers
     tags = {t for key in consts for t in key.split(";") if t.startswith("svm/")}
-    # per layer: its Mapping (Θ, and ξ when the size is constant), its ξ offset (live size) and its Θ in the pick
-    assert {t.split("/")[1] for t in tags} == {"map", "xi", "theta2", "theta3"}
-    assert len(tags) == 3 * n, (n, sorted(tags))
+    # per layer: its Mapping (Θ, and ξ when the size is constant), the four factors of its Location -R_z(Θ) (l ξx, w ξy)
+    # (live size; node_groups.scratch_svm.layer_coordinates) and its Θ in the pick
+    assert {t.split("/")[1] for t in tags} == {"map", "la", "lb", "lc", "ld", "theta2", "theta3"}
+    assert len(tags) == 6 * n, (n, sorted(tags))
     mat.scratch.seed = 7
     mat.scratch.theta_deg = 40.0
     assert addon.live.last_update()["kind"] == "tables"

@@ -100,8 +100,62 @@ def test_svm_alias_image_samples_the_table_distribution(addon, scene):
     img = svm.table_images("alias-check", data)["A"]
     S, M = data["cdf"].shape[0], data["cdf"].shape[1] - 1
     a = np.array(img.pixels[:], np.float64).reshape(S, M, 4)
-    pmf = lt.alias_pmf(a[..., 0], np.rint(a[..., 1]).astype(int))
+    alias = np.rint(a[..., 1]).astype(int) + np.arange(M)        # G = alias_j - j
+    pmf = lt.alias_pmf(a[..., 0], alias)
     p = np.diff(data["cdf"], axis=1)
     live = data["total"] > 0
     np.testing.assert_allclose(pmf[live], p[live], atol=2e-6)  # float32 image
-    assert np.abs(lt.alias_pmf(a[..., 0], np.roll(np.rint(a[..., 1]).astype(int), 1, axis=1))[live] - p[live]).max() > 1e-3
+    np.testing.assert_allclose(a[..., 2], np.broadcast_to(data["total"][:, None], (S, M)), rtol=1e-6)  # B = P
+    assert np.abs(lt.alias_pmf(a[..., 0], np.roll(alias, 1, axis=1))[live] - p[live]).max() > 1e-3
+
+
+def _upstream(socket):
+    """Nodes feeding ``socket`` (through any links)."""
+    seen, todo = set(), [lk.from_node for lk in socket.links]
+    while todo:
+        node = todo.pop()
+        if node.as_pointer() in seen:
+            continue
+        seen.add(node.as_pointer())
+        yield node
+        todo += [lk.from_node for s in node.inputs for lk in s.links]
+
+
+def test_svm_culled_layers_run_the_base_alone(addon, scene, render_dir):
+    """Layers below the cull density (c̄(d) < 1e-6, §6.1) sit behind a Mix Shader whose factor is 0: every
+    Voronoi, table lookup and the scratch closure are reachable from the output only through that switch's
+    second input (Cycles' SVM skips them), and the image is the base's, exactly; the same material above the
+    cull density (a live socket) renders the scratches."""
+    import importlib
+
+    svm = importlib.import_module(addon.__name__.rpartition(".")[0] + ".node_groups.scratch_svm")
+    controls = importlib.import_module(addon.__name__.rpartition(".")[0] + ".node_groups.scratch_controls")
+    assert np.pi * svm.CULL_DENSITY ** 2 == pytest.approx(1e-6)
+    mat = _material(addon, "culled", profile=_profiles(addon)["quartic"], fresnel="iron", base="mirror", backend="svm",
+                    lobe_shape="table", layers=dict(LAYERS16, n_layers=4, density=1e-4))
+    tree = mat.node_tree
+    out = addon.render_paths.cycles_output(tree)
+    gates = [n for n in tree.nodes if n.bl_idname == "ShaderNodeMixShader" and n.inputs["Fac"].is_linked
+             and getattr(n.inputs["Fac"].links[0].from_node, "operation", "") == "GREATER_THAN"]
+    assert len(gates) == 1
+    fac = gates[0].inputs["Fac"].links[0].from_node
+    assert fac.inputs[1].default_value == pytest.approx(svm.CULL_DENSITY)
+    density = fac.inputs[0].links[0].from_socket
+    assert density.node.name == "Scratch Controls" and density.name == "Density"
+    behind = {n.as_pointer() for n in _upstream(gates[0].inputs[2])}
+    costly = [n for n in _upstream(out.inputs["Surface"])
+              if n.bl_idname in ("ShaderNodeTexVoronoi", "ShaderNodeTexImage", "ShaderNodeBsdfGlossy",
+                                 "ShaderNodeTexWhiteNoise", "ShaderNodeVectorRotate")]
+    assert len(costly) > 8 and all(n.as_pointer() in behind for n in costly)
+    assert not any(n.bl_idname == "ShaderNodeTexVoronoi" for n in _upstream(gates[0].inputs[1]))
+    _scene(addon, scene, mat, world="uniform", samples=4)
+    scene.cycles.shading_system = False
+    culled, _ = addon.render.render_array(scene, str(render_dir), "culled")
+    base = tree.nodes[controls.BASE_NODE_NAME]
+    tree.links.new(base.outputs[0], out.inputs["Surface"])
+    only_base, _ = addon.render.render_array(scene, str(render_dir), "base")
+    np.testing.assert_array_equal(culled, only_base)
+    tree.links.new(gates[0].outputs[0], out.inputs["Surface"])
+    mat.node_tree.nodes["Scratch Controls"].inputs["Density"].default_value = 0.3
+    scratched, _ = addon.render.render_array(scene, str(render_dir), "scratched")
+    assert np.abs(scratched.mean() - only_base.mean()) > 0.01, (scratched.mean(), only_base.mean())
