@@ -20,7 +20,11 @@ Rows
                     layer Voronoi (cell centres instead of hashed feature points), footprint α (OSL only:
                     binary [F1 <= d] at the point), slice/CDF search (bin straight from h), closure set-up
                     (untilted white lobe instead of the tilted, eq.-2-weighted one)
-  culled            4 layers at density 1e-4: c̄(d) < ALPHA_CULL, every layer culled at this footprint
+  - layer race      svm 16 layers as the picked-layer graph (every layer's Voronoi per sample) instead of
+                    the race (node_groups/scratch_svm.py ``races``: layers visited in a random order behind
+                    nested Mix Shaders, Cycles skips the rest once one covers the point)
+  culled            4 layers at density 1e-4: c̄(d) < ALPHA_CULL, every layer culled at this footprint (the SVM
+                    twin culls below d = 5.6e-4: a Mix Shader switch, the base alone runs)
   demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
 
     python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3]
@@ -37,6 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: cost_off bits (osl/scratch_layer_alpha.h, osl/scratch_svbrdf.osl, node_groups/scratch_svm.py)
 STAGES = {"layer Voronoi": 1, "footprint α": 2, "slice/CDF search": 4, "closure set-up": 8}
+#: cost_off bit of the SVM twin's layer race (node_groups/scratch_svm.py)
+RACE_OFF = 16
 
 
 def _modules():
@@ -111,6 +117,8 @@ def main(argv: list[str]) -> int:
             if path == "svm" and bit == 2:
                 continue  # the SVM twin has no footprint (binary α)
             setups.append((f"{path} 4 layers - {stage}", scratch(4, cost_off=bit), osl, "frame"))
+        if path == "svm" and not a.quick:
+            setups.append(("svm 16 layers - layer race", scratch(16, cost_off=RACE_OFF), osl, "frame"))
         setups.append((f"{path} 4 layers, all culled (d = 1e-4)", scratch(4, density=1e-4), osl, "frame"))
     setups += [("demo scene: baseline", baseline, False, "demo"),
                ("demo scene: osl 4 layers", scratch(4), True, "demo"),

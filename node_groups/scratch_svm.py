@@ -56,6 +56,7 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
     (same layer count): each layer's Mapping node (``layer_coordinates``), its offset node when the scratch
     size is a socket, and the layer-pick constants; returns how many nodes were written."""
     n = 0
+    race = {}
     for node in tree.nodes:
         for tag in (node.get(LAYER_CONST) or "").split(";"):
             parts = tag.split("/")
@@ -63,7 +64,11 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
                 continue
             kind, k = parts[1], int(parts[2])
             theta, xi = float(theta_k[k]), (float(xi_k[k][0]), float(xi_k[k][1]))
-            if kind == "map":
+            if kind in ("race_rot", "race_off"):
+                if not race:
+                    race["images"] = race_images(theta_k, xi_k)
+                node.image = race["images"][1 if kind == "race_rot" else 2]
+            elif kind == "map":
                 _set_mapping(node, theta, xi)
             elif kind in _LOC_FACTORS:
                 node.inputs[1].default_value = _LOC_FACTORS[kind](math.cos(theta), math.sin(theta), xi)
@@ -165,7 +170,7 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
 
     ``cost_off`` (bench/scratch_cost.py only) switches stages off to time them, as the OSL ``COST_OFF``:
     bit 1 the layer Voronoi (a grid of cell centres instead), 4 the CDF search (bin straight from h),
-    8 the closure set-up (untilted white lobe)."""
+    8 the closure set-up (untilted white lobe), 16 the layer race (``races``: the picked-layer graph instead)."""
     g = _G(tree)
     controls = controls or {}
     tint = controls.get("tint", tint)
@@ -197,6 +202,12 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
                                  for e in (lobe_data["m"], lobe_data["0"]))
     h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
+    if twin == "svm" and not cost_off & 16 and races(lobe_data, layers):   # the Cycles twin: layers in a nested Mix Shader race (``_layer_race``)
+        h_frac = noise(17.0)
+        race_args = dict(geo=geo, N=N, wo=wo, t=t, uv=uvn.outputs["UV"], h_slice=h_slice, h_layer=h_layer,
+                         h_lobe=h_lobe, h_frac=h_frac)
+        return _cull_gate(g, _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls,
+                                         cost_off, twin, **race_args), layers, controls, base_socket)
     if layers is None:
         theta_sel = None
         alpha_sum = 1.0
@@ -274,18 +285,146 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     if base_socket is not None:
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
+    return _cull_gate(g, mixs.outputs[0], layers, controls, base_socket)
+
+
+def race_visits(n_layers: int, density: float) -> float:
+    """Expected number of layers ``_layer_race`` visits (Voronoi evaluations) per sample: with independent
+    layers of mean coverage c = c̄(d), |C| ~ Binomial(N, c) and the race visits (N + 1) / (|C| + 1) on average,
+    E = (1 - (1 - c)^(N+1)) / c (N when c = 0)."""
+    from ..precompute.scratch.layers import coverage_table
+
+    d, cbar = coverage_table()
+    c = float(np.interp(min(max(float(density), 0.0), float(d[-1])), d, cbar))
+    return float(n_layers) if c <= 1e-9 else (1.0 - (1.0 - c) ** (n_layers + 1)) / c
+
+
+def races(lobe_data: dict, layers) -> bool:
+    """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
+    than one layer and a race that visits fewer than half the layers (``race_visits``): a race position costs
+    about twice a layer of the picked-layer graph (measured, bench/scratch_cost: 0.29x vs 0.15x the baseline;
+    fig1c 16 layers at d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).
+    The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
+    if "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
+        return False
+    return race_visits(layers.n_layers, layers.density) < 0.5 * layers.n_layers
+
+
+def _cull_gate(g, scratched, layers, controls, base_socket):
+    """Layer culling (§6.1): every layer's mean coverage c̄(d) < ALPHA_CULL below d = CULL_DENSITY.  A Mix
+    Shader with factor [d >= CULL_DENSITY] puts the whole layer system (Voronoi, lookups, closure) behind
+    Cycles' jump (SVMCompiler::generate_multi_closure skips the nodes only one branch uses): a culled
+    material runs the base alone, and a constant factor folds the switch away at sync."""
+    dens = controls.get("density", None)
     if dens is None and float(layers.density) >= CULL_DENSITY:
-        return mixs.outputs[0]
-    # layer culling (§6.1): every layer's mean coverage c̄(d) < ALPHA_CULL below d = CULL_DENSITY.  A Mix
-    # Shader with factor [d >= CULL_DENSITY] puts the whole layer system (Voronoi, lookups, closure) behind
-    # Cycles' jump (SVMCompiler::generate_multi_closure skips the nodes only one branch uses): a culled
-    # material runs the base alone, and a constant factor folds the switch away at sync.
+        return scratched
     gate = g.node("ShaderNodeMixShader")
     g._set(gate.inputs["Fac"], 0.0 if dens is None else g.math("GREATER_THAN", dens, CULL_DENSITY))
     if base_socket is not None:
-        tree.links.new(base_socket, gate.inputs[1])
-    tree.links.new(mixs.outputs[0], gate.inputs[2])
+        g.tree.links.new(base_socket, gate.inputs[1])
+    g.tree.links.new(scratched, gate.inputs[2])
     return gate.outputs[0]
+
+
+#: rows of the layer-order image of more than ``_EXACT_ORDERS`` layers (random orders; all N! up to it)
+RACE_ORDERS = 2048
+_EXACT_ORDERS = 5
+
+
+def race_orders(n_layers: int) -> np.ndarray:
+    """The layer orders of ``_layer_race`` [P, N] (integers): every permutation for N <= 5 (then the first
+    covering layer of a uniformly drawn row is uniform over the covering layers, exactly), else RACE_ORDERS
+    random permutations (a fixed seed: the same image for every material with N layers; the chance of each
+    covering layer to come first is 1/|C| within sampling error sqrt((1/|C|)(1 - 1/|C|) / P), 1.1 % of 1/2
+    for two covering layers at P = 2048)."""
+    import itertools
+
+    if n_layers <= _EXACT_ORDERS:
+        return np.array(list(itertools.permutations(range(n_layers))), np.int64)
+    rng = np.random.default_rng(20261124)
+    return np.argsort(rng.random((RACE_ORDERS, n_layers)), axis=1)
+
+
+def race_images(theta_k, xi_k) -> tuple:
+    """Images of ``_layer_race``: the orders (``race_orders``; RGB = (k + 1/2) / N, 1/2, 0 of the k-th layer, the
+    coordinate of layer k in the constants images), the rotations (RGB = (0, 0, Θ_k), A = Θ_k: the Mapping
+    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7."""
+    n = len(theta_k)
+    order = race_orders(n)
+    o = np.zeros(order.shape + (4,))
+    o[..., 0], o[..., 1] = (order + 0.5) / n, 0.5
+    rot = np.zeros((1, n, 4))
+    rot[0, :, 2] = rot[0, :, 3] = np.asarray(theta_k, np.float64)
+    off = np.zeros((1, n, 4))
+    off[0, :, :2] = np.asarray(xi_k, np.float64)[:, :2]
+    return (_data_image("Scratch layer orders", o), _data_image("Scratch layer rotations", rot),
+            _data_image("Scratch layer offsets", off))
+
+
+def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls, cost_off, twin, *, geo, N,
+                wo, t, uv, h_slice, h_layer, h_lobe, h_frac):
+    """Eq. 4 with binary α_k, one layer picked uniformly among those covering the point, as a race: the layers
+    are visited in a random order (a row of ``race_orders`` drawn with ``h_layer``) by nested Mix Shaders
+    Mix(α_π(i), <the rest of the race>, ρ_π(i)) ending on the base; the first covering layer is uniform over
+    the covering ones (the OSL path's pick: probability α_k / ᾱ), and Cycles' SVM skips the rest of the race
+    as soon as one covers (NODE_JUMP_IF_ONE): with coverage c̄ per layer the expected number of Voronoi
+    evaluations is (N + 1) E[1 / (|C| + 1)] instead of N (fig1c at 16 layers: 3.7).  Each position holds its
+    own copy of the frame and table lobe (only one runs per sample; EEVEE, which runs every node, keeps the
+    single picked-layer graph of ``build``)."""
+    n = layers.n_layers
+    img_order, img_rot, img_off = race_images(theta_k, xi_k)
+    size = (float(layers.length), float(layers.width), 1.0)
+    if "length" in controls or "width" in controls:
+        size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
+    dens = controls.get("density", None)
+    threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
+
+    def tex(img, vector):
+        node = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        g._set(node.inputs["Vector"], vector)
+        return node
+
+    race = base_socket
+    for i in range(n - 1, -1, -1):
+        at = tex(img_order, g.combine((i + 0.5) / n, h_layer)).outputs["Color"]   # row floor(h P), column i
+        rot, off = tex(img_rot, at), tex(img_off, at)
+        rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/{i}", f"{twin}/race_off/{i}"
+        m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
+        g._set(m.inputs["Vector"], uv)
+        g._set(m.inputs["Rotation"], rot.outputs["Color"])
+        g._set(m.inputs["Scale"], size)
+        y = g.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
+        if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
+            dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
+        else:
+            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+            vor.inputs["Scale"].default_value = 1.0
+            vor.inputs["Randomness"].default_value = 1.0
+            g._set(vor.inputs["Vector"], y)
+            dist = vor.outputs["Distance"]
+        alpha = g.math("LESS_THAN", dist, threshold)                           # [F1]_d, eq. 7
+        lobe = _frame_lobe(g, lobe_data, name, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint,
+                           cost_off)
+        mix = g.node("ShaderNodeMixShader")
+        g._set(mix.inputs["Fac"], alpha)
+        if race is not None:
+            g.tree.links.new(race, mix.inputs[1])
+        g.tree.links.new(lobe, mix.inputs[2])
+        race = mix.outputs[0]
+    return race
+
+
+def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, tint, cost_off):
+    """The table lobe in the scratch frame of a layer at angle ``theta`` (a socket): u = t rotated about N by Θ,
+    v = N x u, φo = atan2(wo.v, wo.N)."""
+    rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
+    g._set(rot.inputs["Vector"], t)
+    g._set(rot.inputs["Axis"], N)
+    g._set(rot.inputs["Angle"], theta)
+    u = rot.outputs["Vector"]
+    v = g.vmath("CROSS_PRODUCT", N, u)
+    phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
+    return _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h_lobe, h_frac, tint, cost_off)
 
 
 #: Location of a layer's Mapping node when the size (l, w) is a socket: L = -R_z(Θ) (l ξx, w ξy) =

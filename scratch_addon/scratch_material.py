@@ -186,6 +186,9 @@ def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
                                        f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600),
                                        controls=preview_live, twin="eevee")
+    elif scratch_svm.races(svm_lobes, params.layers):   # the Cycles twin is a layer race: EEVEE gets its own
+        surfaces["eevee"] = _build_svm(tree, material, params, svm_lobes, base, "EEVEE (all layers at once)",
+                                       offset=(-1400, -2600), controls=live, twin="eevee")
     if src is not None:
         # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
         # and density) share it
@@ -480,5 +483,7 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
             if lp.n_layers > EEVEE_MAX_LAYERS:
                 merged = scratch_layers.merged_layers(lp, EEVEE_MAX_LAYERS)
                 scratch_svm.set_layer_constants(tree, *scratch_layers.layer_transforms(merged), "eevee")
+            else:   # the EEVEE twin of a layer race (a no-op without one)
+                scratch_svm.set_layer_constants(tree, theta_k, xi_k, "eevee")
         _store_params(material, params, prepared["lobes"])
     return material

@@ -158,4 +158,4 @@ def test_svm_culled_layers_run_the_base_alone(addon, scene, render_dir):
     tree.links.new(gates[0].outputs[0], out.inputs["Surface"])
     mat.node_tree.nodes["Scratch Controls"].inputs["Density"].default_value = 0.3
     scratched, _ = addon.render.render_array(scene, str(render_dir), "scratched")
-    assert np.abs(scratched.mean() - only_base.mean()) > 0.01, (scratched.mean(), only_base.mean())
+    assert np.abs(scratched - only_base).mean() > 1e-3, np.abs(scratched - only_base).mean()  # 0 if the switch stayed shut
