@@ -305,7 +305,7 @@ def races(lobe_data: dict, layers) -> bool:
     about twice a layer of the picked-layer graph (measured, bench/scratch_cost: 0.29x vs 0.15x the baseline;
     fig1c 16 layers at d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).
     The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
-    if "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
+    if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
         return False
     return race_visits(layers.n_layers, layers.density) < 0.5 * layers.n_layers
 
@@ -326,6 +326,10 @@ def _cull_gate(g, scratched, layers, controls, base_socket):
     return gate.outputs[0]
 
 
+#: lay dense layer sets out as a race (``races``).  Trade-off (fig1c, 16 layers, this machine): 3.7x instead of 6.0x
+#: the baseline per sample, but 981 nodes instead of 382 (each race position holds its own lobe graph): the
+#: material builds in 10-12 s instead of 1.8 s and costs ~11 ms more scene sync per frame (bench scratch_cost t(1))
+RACE_LAYERS = True
 #: rows of the layer-order image of more than ``_EXACT_ORDERS`` layers (random orders; all N! up to it)
 RACE_ORDERS = 2048
 _EXACT_ORDERS = 5
