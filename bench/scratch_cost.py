@@ -22,6 +22,9 @@ Rows
                     layer Voronoi (cell centres instead of hashed feature points), footprint α (OSL only:
                     binary [F1 <= d] at the point), slice/CDF search (bin straight from h), closure set-up
                     (untilted white lobe instead of the tilted, eq.-2-weighted one)
+  - layer race      svm 16 layers as the picked-layer graph (every layer's Voronoi per sample) instead of
+                    the race (node_groups/scratch_svm.py ``races``: layers visited in a random order behind
+                    nested Mix Shaders, Cycles skips the rest once one covers the point)
   culled            4 layers at density 1e-5: c̄(d) < ALPHA_CULL, every layer culled at this footprint (OSL: the
                     shader returns the base closure before any scratch work, osl/scratch_svbrdf.osl)
   - early-out       (OSL, culled row) without the shader's early return of the base closure when every layer is
@@ -47,6 +50,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: cost_off bits (osl/scratch_layer_alpha.h, osl/scratch_svbrdf.osl, node_groups/scratch_svm.py)
 STAGES = {"layer Voronoi": 1, "footprint α": 2, "slice/CDF search": 4, "closure set-up": 8}
+#: cost_off bit 16: the SVM twin's layer race off (node_groups/scratch_svm.py) and, in the OSL shader, its
+#: early return of the base closure when every layer is culled off (osl/scratch_svbrdf.osl): one bit, two paths
+RACE_OFF = EARLY_OUT_OFF = 16
 
 
 def _modules():
@@ -124,9 +130,11 @@ def main(argv: list[str]) -> int:
             if path == "svm" and bit == 2:
                 continue  # the SVM twin has no footprint (binary α)
             setups.append((f"{path} 4 layers - {stage}", scratch(4, cost_off=bit), osl, "frame"))
+        if path == "svm" and not a.quick:
+            setups.append(("svm 16 layers - layer race", scratch(16, cost_off=RACE_OFF), osl, "frame"))
         setups.append((f"{path} 4 layers, all culled (d = 1e-5)", scratch(4, density=1e-5), osl, "frame"))
         if osl:
-            setups.append((f"{path} 4 layers, all culled (d = 1e-5) - early-out", scratch(4, cost_off=16, density=1e-5),
+            setups.append((f"{path} 4 layers, all culled (d = 1e-5) - early-out", scratch(4, cost_off=EARLY_OUT_OFF, density=1e-5),
                            osl, "frame"))
     setups += [("demo scene: baseline", baseline, False, "demo"),
                ("demo scene: osl 4 layers", scratch(4), True, "demo"),

@@ -14,9 +14,19 @@ Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
   two nearest rows, as in OSL; jittered (box) lobes share one tilt offset per sample (the OSL
   path jitters only the picked lobe: the same expectation);
 - tabulated-tilt lobes (``precompute.scratch.lobe_table``, the default) are one Glossy node: the bin is
-  found by a binary search of log2 M Closest lookups in a packed CDF image (M a power of two), the
-  aim inside the bin with the same random number, weights from a second image; dense scratches:
+  drawn from a packed alias-table image (one Closest lookup), the aim inside the bin with a second
+  random number, the colour from one Linear lookup of the pre-summed θo factor; dense scratches:
   image means equal to the OSL table lobes within noise (0.2-0.4 %).
+
+Cost (``bench/scratch_cost.py``, whole frame, per sample, against the SVM anisotropic Glossy): Cycles' SVM
+runs every node that feeds the output, except the nodes that feed only one input of a Mix Shader whose
+factor is linked: those are skipped when the factor selects the other input (``SVMCompiler::
+generate_multi_closure``: NODE_JUMP_IF_ZERO / NODE_JUMP_IF_ONE).  So the graph keeps the per-sample work
+behind Mix Shaders: the scratch closure and its lookups behind min(ᾱ, 1) (not run where no layer covers
+the point), the whole layer system behind the cull switch [d >= CULL_DENSITY] (a culled material costs its
+base).  What stays is per layer one Mapping and one Voronoi node (~0.03x and ~0.13x the baseline: the
+Voronoi's 9 hashed cells dominate) and four Math nodes (~0.01x each), and per sample about 45 nodes for the
+frame, the table lookups and the tilt (images hold what can be precomputed per bin).
 """
 from __future__ import annotations
 
@@ -35,6 +45,11 @@ TABLE_GLOSSY = "scratch_table_glossy"
 TABLE_ROWS = "scratch_table_rows"
 #: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
 LAYER_CONST = "scratch_layer_const"
+#: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, as ``osl.scratch_svbrdf.ALPHA_CULL``) below this
+#: density: the mean coverage of [F1 <= d] is c̄(d) = π d² for small d (one feature point per unit cell; exact as
+#: d -> 0, 2 % high at d = 0.1 against ``precompute.scratch.layers.mean_coverage``), so c̄(d) < 1e-6 for
+#: d < sqrt(1e-6 / π) = 5.6e-4.  The SVM path has no footprint: it culls wherever the OSL path's far field would.
+CULL_DENSITY = math.sqrt(1e-6 / math.pi)
 #: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
 TABLE_IMAGE_PREFIX = "Scratch table "
 
@@ -44,6 +59,7 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
     (same layer count): each layer's Mapping node (``layer_coordinates``), its offset node when the scratch
     size is a socket, and the layer-pick constants; returns how many nodes were written."""
     n = 0
+    race = {}
     for node in tree.nodes:
         for tag in (node.get(LAYER_CONST) or "").split(";"):
             parts = tag.split("/")
@@ -51,10 +67,14 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
                 continue
             kind, k = parts[1], int(parts[2])
             theta, xi = float(theta_k[k]), (float(xi_k[k][0]), float(xi_k[k][1]))
-            if kind == "map":
+            if kind in ("race_rot", "race_off"):
+                if not race:
+                    race["images"] = race_images(theta_k, xi_k)
+                node.image = race["images"][1 if kind == "race_rot" else 2]
+            elif kind == "map":
                 _set_mapping(node, theta, xi)
-            elif kind == "xi":
-                node.inputs[1].default_value = (xi[0], xi[1], 0.0)
+            elif kind in _LOC_FACTORS:
+                node.inputs[1].default_value = _LOC_FACTORS[kind](math.cos(theta), math.sin(theta), xi)
             elif kind == "theta2":
                 node.inputs[2].default_value = theta
             elif kind == "theta3":
@@ -153,7 +173,7 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
 
     ``cost_off`` (bench/scratch_cost.py only) switches stages off to time them, as the OSL ``COST_OFF``:
     bit 1 the layer Voronoi (a grid of cell centres instead), 4 the CDF search (bin straight from h),
-    8 the closure set-up (untilted white lobe)."""
+    8 the closure set-up (untilted white lobe), 16 the layer race (``races``: the picked-layer graph instead)."""
     g = _G(tree)
     controls = controls or {}
     tint = controls.get("tint", tint)
@@ -177,25 +197,35 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         return g.separate(wn.outputs["Color"]) if channels else wn.outputs["Value"]
 
     h_slice, h_layer, h_lobe = noise(0.0, channels=True)
-    h_frac = noise(17.0) if table else None
+    # the aim inside a table bin: its own hash for dense scratches; with layers, the residual of the layer
+    # pick (fract(h_layer ᾱ): uniform and independent of the picked layer, ᾱ being an integer) saves a node
+    h_frac = noise(17.0) if table and layers is None else None
     # tilt jitter (stochastic box lobes): one offset in [-1, 1) per sample, scaled per lobe
     jittered = not table and any(e is not None and np.any(np.asarray(e.get("jitters", 0.0)) > 0)
                                  for e in (lobe_data["m"], lobe_data["0"]))
     h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
+    if twin == "svm" and not cost_off & 16 and races(lobe_data, layers):   # the Cycles twin: layers in a nested Mix Shader race (``_layer_race``)
+        h_frac = noise(17.0)
+        race_args = dict(geo=geo, N=N, wo=wo, t=t, uv=uvn.outputs["UV"], h_slice=h_slice, h_layer=h_layer,
+                         h_lobe=h_lobe, h_frac=h_frac)
+        return _cull_gate(g, _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls,
+                                         cost_off, twin, **race_args), layers, controls, base_socket)
     if layers is None:
         theta_sel = None
         alpha_sum = 1.0
     else:
         uv = uvn.outputs["UV"]
         size = (float(layers.length), float(layers.width), 1.0)
+        lw = None
         if "length" in controls or "width" in controls:   # live sockets: Scale = (l, w, 1) from the controls
-            size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
+            lw = (controls.get("length", size[0]), controls.get("width", size[1]))
+            size = g.combine(lw[0], lw[1], 1.0)
         dens = controls.get("density", None)
         threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
         acc, accs = None, []
         for k in range(layers.n_layers):
-            y = layer_coordinates(g, uv, theta_k[k], size, xi_k[k], tag=f"{twin}/%s/{k}")
+            y = layer_coordinates(g, uv, theta_k[k], size, xi_k[k], tag=f"{twin}/%s/{k}", lw=lw)
             if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
                 dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
             else:
@@ -211,6 +241,8 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         # layer k is picked when acc_{k-1} <= target < acc_k (probability α_k / ᾱ): from the last layer
         # back, Θ = Θ_k wherever target < acc_k (one Less Than and one Mix per layer)
         target = g.math("MULTIPLY", h_layer, alpha_sum)
+        if table:
+            h_frac = g.math("FRACT", target)
         theta_sel = float(theta_k[-1])
         for k in range(layers.n_layers - 2, -1, -1):
             mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
@@ -256,15 +288,167 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     if base_socket is not None:
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
-    return mixs.outputs[0]
+    return _cull_gate(g, mixs.outputs[0], layers, controls, base_socket)
 
 
-def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None) -> bpy.types.NodeSocket:
+def race_visits(n_layers: int, density: float) -> float:
+    """Expected number of layers ``_layer_race`` visits (Voronoi evaluations) per sample: with independent
+    layers of mean coverage c = c̄(d), |C| ~ Binomial(N, c) and the race visits (N + 1) / (|C| + 1) on average,
+    E = (1 - (1 - c)^(N+1)) / c (N when c = 0)."""
+    from ..precompute.scratch.layers import coverage_table
+
+    d, cbar = coverage_table()
+    c = float(np.interp(min(max(float(density), 0.0), float(d[-1])), d, cbar))
+    return float(n_layers) if c <= 1e-9 else (1.0 - (1.0 - c) ** (n_layers + 1)) / c
+
+
+def races(lobe_data: dict, layers) -> bool:
+    """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
+    than one layer and a race that visits fewer than half the layers (``race_visits``): a race position costs
+    about twice a layer of the picked-layer graph (measured, bench/scratch_cost: 0.29x vs 0.15x the baseline;
+    fig1c 16 layers at d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).
+    The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
+    if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
+        return False
+    return race_visits(layers.n_layers, layers.density) < 0.5 * layers.n_layers
+
+
+def _cull_gate(g, scratched, layers, controls, base_socket):
+    """Layer culling (§6.1): every layer's mean coverage c̄(d) < ALPHA_CULL below d = CULL_DENSITY.  A Mix
+    Shader with factor [d >= CULL_DENSITY] puts the whole layer system (Voronoi, lookups, closure) behind
+    Cycles' jump (SVMCompiler::generate_multi_closure skips the nodes only one branch uses): a culled
+    material runs the base alone, and a constant factor folds the switch away at sync."""
+    dens = controls.get("density", None)
+    if dens is None and float(layers.density) >= CULL_DENSITY:
+        return scratched
+    gate = g.node("ShaderNodeMixShader")
+    g._set(gate.inputs["Fac"], 0.0 if dens is None else g.math("GREATER_THAN", dens, CULL_DENSITY))
+    if base_socket is not None:
+        g.tree.links.new(base_socket, gate.inputs[1])
+    g.tree.links.new(scratched, gate.inputs[2])
+    return gate.outputs[0]
+
+
+#: lay dense layer sets out as a race (``races``).  Trade-off (fig1c, 16 layers, this machine): 3.7x instead of 6.0x
+#: the baseline per sample, but 981 nodes instead of 382 (each race position holds its own lobe graph): the
+#: material builds in 10-12 s instead of 1.8 s and costs ~11 ms more scene sync per frame (bench scratch_cost t(1))
+RACE_LAYERS = True
+#: rows of the layer-order image of more than ``_EXACT_ORDERS`` layers (random orders; all N! up to it)
+RACE_ORDERS = 2048
+_EXACT_ORDERS = 5
+
+
+def race_orders(n_layers: int) -> np.ndarray:
+    """The layer orders of ``_layer_race`` [P, N] (integers): every permutation for N <= 5 (then the first
+    covering layer of a uniformly drawn row is uniform over the covering layers, exactly), else RACE_ORDERS
+    random permutations (a fixed seed: the same image for every material with N layers; the chance of each
+    covering layer to come first is 1/|C| within sampling error sqrt((1/|C|)(1 - 1/|C|) / P), 1.1 % of 1/2
+    for two covering layers at P = 2048)."""
+    import itertools
+
+    if n_layers <= _EXACT_ORDERS:
+        return np.array(list(itertools.permutations(range(n_layers))), np.int64)
+    rng = np.random.default_rng(20261124)
+    return np.argsort(rng.random((RACE_ORDERS, n_layers)), axis=1)
+
+
+def race_images(theta_k, xi_k) -> tuple:
+    """Images of ``_layer_race``: the orders (``race_orders``; RGB = (k + 1/2) / N, 1/2, 0 of the k-th layer, the
+    coordinate of layer k in the constants images), the rotations (RGB = (0, 0, Θ_k), A = Θ_k: the Mapping
+    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7."""
+    n = len(theta_k)
+    order = race_orders(n)
+    o = np.zeros(order.shape + (4,))
+    o[..., 0], o[..., 1] = (order + 0.5) / n, 0.5
+    rot = np.zeros((1, n, 4))
+    rot[0, :, 2] = rot[0, :, 3] = np.asarray(theta_k, np.float64)
+    off = np.zeros((1, n, 4))
+    off[0, :, :2] = np.asarray(xi_k, np.float64)[:, :2]
+    return (_data_image("Scratch layer orders", o), _data_image("Scratch layer rotations", rot),
+            _data_image("Scratch layer offsets", off))
+
+
+def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls, cost_off, twin, *, geo, N,
+                wo, t, uv, h_slice, h_layer, h_lobe, h_frac):
+    """Eq. 4 with binary α_k, one layer picked uniformly among those covering the point, as a race: the layers
+    are visited in a random order (a row of ``race_orders`` drawn with ``h_layer``) by nested Mix Shaders
+    Mix(α_π(i), <the rest of the race>, ρ_π(i)) ending on the base; the first covering layer is uniform over
+    the covering ones (the OSL path's pick: probability α_k / ᾱ), and Cycles' SVM skips the rest of the race
+    as soon as one covers (NODE_JUMP_IF_ONE): with coverage c̄ per layer the expected number of Voronoi
+    evaluations is (N + 1) E[1 / (|C| + 1)] instead of N (fig1c at 16 layers: 3.7).  Each position holds its
+    own copy of the frame and table lobe (only one runs per sample; EEVEE, which runs every node, keeps the
+    single picked-layer graph of ``build``)."""
+    n = layers.n_layers
+    img_order, img_rot, img_off = race_images(theta_k, xi_k)
+    size = (float(layers.length), float(layers.width), 1.0)
+    if "length" in controls or "width" in controls:
+        size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
+    dens = controls.get("density", None)
+    threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
+
+    def tex(img, vector):
+        node = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        g._set(node.inputs["Vector"], vector)
+        return node
+
+    race = base_socket
+    for i in range(n - 1, -1, -1):
+        at = tex(img_order, g.combine((i + 0.5) / n, h_layer)).outputs["Color"]   # row floor(h P), column i
+        rot, off = tex(img_rot, at), tex(img_off, at)
+        rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/{i}", f"{twin}/race_off/{i}"
+        m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
+        g._set(m.inputs["Vector"], uv)
+        g._set(m.inputs["Rotation"], rot.outputs["Color"])
+        g._set(m.inputs["Scale"], size)
+        y = g.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
+        if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
+            dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
+        else:
+            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+            vor.inputs["Scale"].default_value = 1.0
+            vor.inputs["Randomness"].default_value = 1.0
+            g._set(vor.inputs["Vector"], y)
+            dist = vor.outputs["Distance"]
+        alpha = g.math("LESS_THAN", dist, threshold)                           # [F1]_d, eq. 7
+        lobe = _frame_lobe(g, lobe_data, name, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint,
+                           cost_off)
+        mix = g.node("ShaderNodeMixShader")
+        g._set(mix.inputs["Fac"], alpha)
+        if race is not None:
+            g.tree.links.new(race, mix.inputs[1])
+        g.tree.links.new(lobe, mix.inputs[2])
+        race = mix.outputs[0]
+    return race
+
+
+def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, tint, cost_off):
+    """The table lobe in the scratch frame of a layer at angle ``theta`` (a socket): u = t rotated about N by Θ,
+    v = N x u, φo = atan2(wo.v, wo.N)."""
+    rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
+    g._set(rot.inputs["Vector"], t)
+    g._set(rot.inputs["Axis"], N)
+    g._set(rot.inputs["Angle"], theta)
+    u = rot.outputs["Vector"]
+    v = g.vmath("CROSS_PRODUCT", N, u)
+    phi_o = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, v), g.vmath("DOT_PRODUCT", wo, N))
+    return _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h_lobe, h_frac, tint, cost_off)
+
+
+#: Location of a layer's Mapping node when the size (l, w) is a socket: L = -R_z(Θ) (l ξx, w ξy) =
+#: (l a + w b, l c + w d) with these factors of (cos Θ, sin Θ, ξ) (``layer_coordinates``)
+_LOC_FACTORS = {"la": lambda c, s_, xi: -c * float(xi[0]), "lb": lambda c, s_, xi: s_ * float(xi[1]),
+                "lc": lambda c, s_, xi: -s_ * float(xi[0]), "ld": lambda c, s_, xi: -c * float(xi[1])}
+
+
+def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None, lw=None) -> bpy.types.NodeSocket:
     """Eq. 7: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
-    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]], in one Mapping node when ``size`` = (l, w) is constant.
+    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]], in one Mapping node.
     Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and
-    L = -R_z(Θ) S ξ.  When ``size`` is a socket (live controls), L = 0 and one Add node adds ξ.
-    ``tag`` ("<twin>/%s/<k>") marks the nodes for ``set_layer_constants``."""
+    L = -R_z(Θ) S ξ.  When ``size`` is a socket (live controls), ``lw`` = (l, w) (sockets or numbers) and L is
+    computed from them by Math nodes that depend on the controls only: Cycles folds them into a constant at
+    sync, so the layer still costs one Mapping node per shading point (an Add node after the mapping, as
+    before, cost 0.035x the baseline per layer).  ``tag`` ("<twin>/%s/<k>") marks the nodes for
+    ``set_layer_constants``."""
     m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
     g._set(m.inputs["Vector"], uv)
     g._set(m.inputs["Scale"], size)
@@ -273,10 +457,17 @@ def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None) -> 
     _set_mapping(m, theta, xi)
     if not isinstance(size, bpy.types.NodeSocket):
         return m.outputs["Vector"]
-    add = g.vmath("ADD", m.outputs["Vector"], (float(xi[0]), float(xi[1]), 0.0))
-    if tag:
-        add.node[LAYER_CONST] = tag % "xi"
-    return add
+    c, s_ = math.cos(theta), math.sin(theta)
+    l, w = lw
+    loc = []
+    for kx, ky in (("la", "lb"), ("lc", "ld")):      # l * kx + w * ky
+        mw = g.math("MULTIPLY", w, _LOC_FACTORS[ky](c, s_, xi))
+        ml = g.math("MULTIPLY_ADD", l, _LOC_FACTORS[kx](c, s_, xi), mw)
+        if tag:
+            mw.node[LAYER_CONST], ml.node[LAYER_CONST] = tag % ky, tag % kx
+        loc.append(ml)
+    g._set(m.inputs["Location"], g.combine(loc[0], loc[1], 0.0))
+    return m.outputs["Vector"]
 
 
 def _set_mapping(m, theta: float, xi) -> None:
@@ -366,14 +557,17 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
 
 
 def table_images(name: str, lobe_data: dict) -> dict:
-    """Packed Non-Color float images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``):
+    """Packed Non-Color float images of tabulated-tilt lobes (``precompute.scratch.lobes.table_lobes``), laid
+    out so that the shader does as little arithmetic per sample as possible (``_table_lobe``):
 
-    - ``N`` [1, G]: per uniform φo cell, R = its node interval k, G = φ_k, B = φ_k+1 (radians);
-    - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j, G = alias_j;
-    - ``C`` [S, M] (rows = φo nodes): G = the node's total P, B = the aim code of the bin (exit centroid + 2 for
-      even bounces), A = the node's φ;
-    - lossy only: ``Y`` [S, K M / y_group] RGB = the θo coefficients (column g K + k for bin group g,
-      function k) and ``B`` [K, NT] RGB = the θo basis (read with Linear interpolation along v).
+    - ``N`` [1, G]: per uniform φo cell with node interval k: R = (k + 1/2) / S (the row of node k), G = φ_k,
+      B = φ_k+1 - φ_k (radians);
+    - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j,
+      G = alias_j - j, B = the node's total P;
+    - ``C`` [S, M] (rows = φo nodes), bin b of node s with exit centroid c, half spread h = min(c, 1 - c)
+      and sign σ = +1 for odd bounces (mirror-like), -1 for even ones (retro-like): R = b + c - h,
+      G = 2 h, B = -σ / 2, A = σ φ_s / 2 (the tilt is then (R + G ξ) π / 2M - π/4 + φo / 2 + B φo + A);
+    - lossy only: ``Y`` [S, NT M / y_group] RGB = ``theta_factor``.
     Images are shared by content (``_data_image``).
     """
     from ..precompute.scratch.lobe_table import alias_table
@@ -384,27 +578,42 @@ def table_images(name: str, lobe_data: dict) -> dict:
     phi = np.asarray(lobe_data["phi"], np.float64)
     cell = np.asarray(lobe_data["cell"], np.int64)
     n = np.zeros((1, cell.size, 4))
-    n[0, :, 0], n[0, :, 1], n[0, :, 2] = cell, phi[cell], phi[cell + 1]
+    n[0, :, 0], n[0, :, 1], n[0, :, 2] = (cell + 0.5) / S, phi[cell], phi[cell + 1] - phi[cell]
     prob, alias = lobe_data.get("alias_prob"), lobe_data.get("alias_idx")
     if prob is None or alias is None:
         prob, alias = alias_table(cdf)
+    total = np.asarray(lobe_data["total"], np.float64)
     a = np.zeros((S, M, 4))
-    a[..., 0], a[..., 1] = prob, alias
+    a[..., 0], a[..., 1], a[..., 2] = prob, np.asarray(alias) - np.arange(M), total[:, None]
+    code = np.asarray(lobe_data["cen"], np.float64)
+    even = code > 1.5
+    ce = code - 2.0 * even
+    hw = np.minimum(ce, 1.0 - ce)
+    sigma = 1.0 - 2.0 * even
     c = np.zeros((S, M, 4))
-    c[..., 1] = np.asarray(lobe_data["total"], np.float64)[:, None]
-    c[..., 2] = lobe_data["cen"]
-    c[..., 3] = phi[:, None]
+    c[..., 0], c[..., 1] = np.arange(M) + ce - hw, 2.0 * hw
+    c[..., 2], c[..., 3] = -0.5 * sigma, 0.5 * sigma * phi[:, None]
     out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n), "A": _data_image(TABLE_IMAGE_PREFIX + "A", a),
            "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
     if lobe_data.get("basis") is not None:
-        coef = np.asarray(lobe_data["coef"], np.float64)                      # [S, Mg, K, 3]
-        y = np.zeros((S, coef.shape[1] * coef.shape[2], 4))
-        y[..., :3] = coef.reshape(S, -1, 3)
-        basis = np.asarray(lobe_data["basis"], np.float64)                    # [K, NT, 3]
-        b = np.zeros(basis.shape[:2] + (4,))
-        b[..., :3] = basis
-        out.update(Y=_data_image(TABLE_IMAGE_PREFIX + "Y", y), B=_data_image(TABLE_IMAGE_PREFIX + "Btheta", b))
+        out["Y"] = _data_image(TABLE_IMAGE_PREFIX + "Y", theta_factor(lobe_data))
     return out
+
+
+def theta_factor(lobe_data: dict) -> np.ndarray:
+    """The colour of the table lobe, P max(Y_g(v_t), 0) with the θo factor Y_g(v_t) = Σ_k coef[s, g, k] B_k(v_t)
+    pre-summed over the K basis functions (``precompute.scratch.lobes.table_lobes``; v = 1 - sqrt(cos θo) on NT
+    samples) and P the φo node's total, per RGB channel, as the RGBA rows of the ``Y`` image [S, Mg NT, 4]
+    (column g NT + t).  Read with Linear interpolation along v inside a group's NT columns: one lookup where
+    coefficients and basis took 2 K, a scale and a clamp.  The clamp is applied to the samples (the shader
+    clamped the interpolated value: they differ only between two samples of opposite sign)."""
+    coef = np.asarray(lobe_data["coef"], np.float64)                          # [S, Mg, K, 3]
+    basis = np.asarray(lobe_data["basis"], np.float64)                        # [K, NT, 3]
+    y = np.einsum("sgkc,ktc->sgtc", coef, basis)                              # [S, Mg, NT, 3]
+    y = np.maximum(y, 0.0) * np.asarray(lobe_data["total"], np.float64)[:, None, None, None]
+    out = np.zeros(y.shape[:2] + (y.shape[2], 4))
+    out[..., :3] = y
+    return out.reshape(coef.shape[0], -1, 4)
 
 
 def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint, cost_off=0):
@@ -413,46 +622,41 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     alias table (one lookup, probability p_b / P), the aim at the bin's exit centroid moved to the actual view
     (odd bounces mirror-like, even retro-like; the spread inside the bin drawn with ``h_frac``), a narrow GGX
     Glossy tilted halfway between φo and the exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v),
-    v = 1 - sqrt(cos θo)).  ``cost_off`` bits 4 / 8 as in ``build``."""
+    v = 1 - sqrt(cos θo)).  The images (``table_images``) hold what can be precomputed per bin, so a sample
+    costs 4 lookups and 20 Math nodes.  ``cost_off`` bits 4 / 8 as in ``build``."""
     imgs = table_images(name, lobe_data)
     cdf = lobe_data["cdf"]
     S, M = cdf.shape[0], cdf.shape[1] - 1
-    G = int(np.asarray(lobe_data["cell"]).size)
     lossless = lobe_data.get("basis") is None
 
-    def fetch(img, col, n_cols, row, interpolation="Closest"):
-        # lookup of column col (an integer, or a continuous coordinate for Linear), row ``row`` in [0, 1]
+    def fetch(img, x, y, interpolation="Closest"):
+        # lookup at (x, y) in [0, 1]^2: Closest reads texel floor(x width) (Cycles' interp_closest)
         tex = g.node("ShaderNodeTexImage", image=img, interpolation=interpolation, extension="EXTEND")
-        g._set(tex.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", col, 1.0 / n_cols, 0.5 / n_cols), row))
+        g._set(tex.inputs["Vector"], g.combine(x, y))
         return tex
 
-    # node interval of phi_o (EXTEND clamps the cell), then one of its two nodes with the linear weight
-    cell = g.math("FLOOR", g.math("MULTIPLY_ADD", phi_o, G / _PI, G / 2))
-    k, pa, pb = g.separate(fetch(imgs["N"], cell, G, 0.5).outputs["Color"])
-    up = g.math("LESS_THAN", g.math("MULTIPLY", h_slice, g.math("SUBTRACT", pb, pa)), g.math("SUBTRACT", phi_o, pa))
-    row = g.math("MULTIPLY_ADD", g.math("ADD", k, up), 1.0 / S, 0.5 / S)
-    row.node[TABLE_ROWS] = True
+    # node interval of phi_o (EXTEND clamps the cell), then one of its two nodes with the linear weight:
+    # the upper one when φ_k + h (φ_k+1 - φ_k) < φo
+    row_k, pa, dp = g.separate(fetch(imgs["N"], g.math("MULTIPLY_ADD", phi_o, 1.0 / _PI, 0.5), 0.5).outputs["Color"])
+    up = g.math("LESS_THAN", g.math("MULTIPLY_ADD", h_slice, dp, pa), phi_o)
+    row = g.math("MULTIPLY_ADD", up, 1.0 / S, row_k)
+    row.node[TABLE_ROWS] = True   # its 1/S is rewritten when an in-place table update changes S
     uh = g.math("MULTIPLY", h, float(M))
     j = g.math("FLOOR", uh)
-    if cost_off & 4:  # bench: no alias lookup (the bin straight from h)
+    a_tex = fetch(imgs["A"], h, row)              # texel floor(h M) = j
+    prob, d_alias, P = g.separate(a_tex.outputs["Color"])
+    if cost_off & 4:  # bench: no alias table (the bin straight from h)
         lo = j
     else:
-        prob, alias, _ = g.separate(fetch(imgs["A"], j, M, row).outputs["Color"])
         take = g.math("LESS_THAN", prob, g.math("SUBTRACT", uh, j))     # u - j >= prob_j: the alias bin
-        lo = g.math("MULTIPLY_ADD", take, g.math("SUBTRACT", alias, j), j)
-    c0 = fetch(imgs["C"], lo, M, row)
-    _, P, code = g.separate(c0.outputs["Color"])
-    phi_s = c0.outputs["Alpha"]
-    fr = h_frac
-    # aim = (lo + ce + (2 fr - 1) hw) π / M - π/2, ce = code (- 2 for even bounces), hw = min(ce, 1 - ce)
-    even = g.math("GREATER_THAN", code, 1.5)
-    ce = g.math("MULTIPLY_ADD", even, -2.0, code)
-    hw = g.math("MINIMUM", ce, g.math("SUBTRACT", 1.0, ce))
-    aim = g.math("MULTIPLY_ADD", g.math("ADD", g.math("ADD", lo, ce), g.math("MULTIPLY", g.math("MULTIPLY_ADD", fr, 2.0, -1.0), hw)),
-                 _PI / M, -_PI / 2)
-    # exit: aim + (phi_s - phi_o) for odd bounces, aim - (phi_s - phi_o) for even ones; tilt = (exit + φo) / 2
-    d = g.math("MULTIPLY", g.math("SUBTRACT", phi_s, phi_o), g.math("MULTIPLY_ADD", even, -2.0, 1.0))
-    tilt = g.math("MULTIPLY", g.math("ADD", g.math("ADD", aim, d), phi_o), 0.5)
+        lo = g.math("MULTIPLY_ADD", take, d_alias, j)
+    c0 = fetch(imgs["C"], g.math("MULTIPLY_ADD", lo, 1.0 / M, 0.5 / M), row)
+    a0, a1, b_phi = g.separate(c0.outputs["Color"])
+    a_phi = c0.outputs["Alpha"]
+    # exit = aim ± (φ_s - φo) (+ odd, - even bounces), aim = (lo + c + (2 ξ - 1) h) π / M - π/2; the lobe's
+    # tilt = (exit + φo) / 2 = (a0 + a1 ξ) π / 2M - π/4 + φo / 2 + b_phi φo + a_phi  (table_images)
+    r = g.math("ADD", g.math("MULTIPLY_ADD", b_phi, phi_o, a_phi), g.math("MULTIPLY_ADD", phi_o, 0.5, -_PI / 4))
+    tilt = g.math("MULTIPLY_ADD", g.math("MULTIPLY_ADD", a1, h_frac, a0), _PI / (2 * M), r)
     # the lobe normal cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
     rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE", invert=True)
     g._set(rot.inputs["Vector"], N)
@@ -462,21 +666,16 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     if lossless:
         colour = P
     else:
-        K, NT = lobe_data["basis"].shape[:2]
+        NT = lobe_data["basis"].shape[1]
         yg = int(lobe_data.get("y_group", 1))
-        n_cols = lobe_data["coef"].shape[1] * K
+        n_cols = lobe_data["coef"].shape[1] * NT
+        # v = 1 - sqrt(cos θo) = 1 - q, q = (1 - (wo.u)^2)^(1/4) (Cycles' power is 0 for a negative base), as a
+        # continuous column inside the bin group's NT samples: col = g NT + v (NT - 1), linear between samples
         cu = g.vmath("DOT_PRODUCT", wo, u)
-        cos_t = g.math("SQRT", g.math("MAXIMUM", g.math("MULTIPLY_ADD", cu, g.math("MULTIPLY", cu, -1.0), 1.0), 0.0))
-        bcol = g.math("MULTIPLY", g.math("SUBTRACT", 1.0, g.math("SQRT", cos_t)), NT - 1.0)  # linear between samples
-        grp = g.math("MULTIPLY", g.math("FLOOR", g.math("DIVIDE", g.math("ADD", lo, 0.5), float(yg))), float(K))
-        Y = None
-        for jj in range(K):
-            coef = fetch(imgs["Y"], g.math("ADD", grp, float(jj)), n_cols, row).outputs["Color"]
-            basis = fetch(imgs["B"], bcol, NT, (jj + 0.5) / K, "Linear").outputs["Color"]
-            term = g.vmath("MULTIPLY", coef, basis)
-            Y = term if Y is None else g.vmath("ADD", Y, term)
-        Y = g.vmath("MAXIMUM", Y, (0.0, 0.0, 0.0))
-        colour = g.vmath("SCALE", Y, scale=P)
+        q = g.math("POWER", g.math("SUBTRACT", 1.0, g.math("MULTIPLY", cu, cu)), 0.25)
+        grp = g.math("FLOOR", g.math("MULTIPLY_ADD", lo, 1.0 / yg, 0.5 / yg))
+        x = g.math("MULTIPLY_ADD", grp, NT / n_cols, g.math("MULTIPLY_ADD", q, (1.0 - NT) / n_cols, (NT - 0.5) / n_cols))
+        colour = fetch(imgs["Y"], x, row, "Linear").outputs["Color"]
     colour = _tinted(g, colour, tint)
     # Glossy roughness mapping (see lobe_images): alpha_y below alpha_x -> an isotropic lobe of alpha_x
     ax = float(lobe_data["alpha_x"])
@@ -487,7 +686,7 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     g._set(glossy.inputs["Anisotropy"], aniso)
     g._set(glossy.inputs["Tangent"], u)
     if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and the node kept alive)
-        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, phi_s), 1e-9, 1.0),
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, a_phi), 1e-9, 1.0),
                                                   rough))
         return glossy.outputs[0]
     g._set(glossy.inputs["Color"], colour)

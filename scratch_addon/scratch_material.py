@@ -187,6 +187,9 @@ def _build_tree(material, tree, params: ScratchParams, src, lobe_data, svm_lobes
         surfaces["eevee"] = _build_svm(tree, material, preview, svm_lobes, base,
                                        f"EEVEE preview ({EEVEE_MAX_LAYERS} merged layers)", offset=(-1400, -2600),
                                        controls=preview_live, twin="eevee")
+    elif scratch_svm.races(svm_lobes, params.layers):   # the Cycles twin is a layer race: EEVEE gets its own
+        surfaces["eevee"] = _build_svm(tree, material, params, svm_lobes, base, "EEVEE (all layers at once)",
+                                       offset=(-1400, -2600), controls=live, twin="eevee")
     if src is not None:
         # one Text per distinct shader: materials that differ only by socket values (tint, base, layer size
         # and density) share it
@@ -595,9 +598,10 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         for node in table_nodes:
             node.image = new[node.image.name.rsplit(" ", 1)[0]]
         S = int(np.asarray(svm_lobes["cdf"]).shape[0])   # adaptive φo nodes: rows of the A, C, Y images
-        for node in rows:
+        for node in rows:   # row = up / S + row_k: row_k ((k + 0.5) / S) comes from the N image
             node.inputs[1].default_value = 1.0 / S
-            node.inputs[2].default_value = 0.5 / S
+            if not node.inputs[2].is_linked:
+                node.inputs[2].default_value = 0.5 / S
         ax = float(svm_lobes["alpha_x"])
         rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
         for node in tree.nodes:
@@ -611,6 +615,8 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
             if lp.n_layers > EEVEE_MAX_LAYERS:
                 merged = scratch_layers.merged_layers(lp, EEVEE_MAX_LAYERS)
                 scratch_svm.set_layer_constants(tree, *scratch_layers.layer_transforms(merged), "eevee")
+            else:   # the EEVEE twin of a layer race (a no-op without one)
+                scratch_svm.set_layer_constants(tree, theta_k, xi_k, "eevee")
         _store_params(material, params, prepared["lobes"])
         if preview:
             material[PREVIEW_KEY] = 1
