@@ -226,15 +226,7 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         acc, accs = None, []
         for k in range(layers.n_layers):
             y = layer_coordinates(g, uv, theta_k[k], size, xi_k[k], tag=f"{twin}/%s/{k}", lw=lw)
-            if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
-                dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
-            else:
-                vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
-                vor.inputs["Scale"].default_value = 1.0
-                vor.inputs["Randomness"].default_value = 1.0
-                g._set(vor.inputs["Vector"], y)
-                dist = vor.outputs["Distance"]
-            a = g.math("LESS_THAN", dist, threshold)  # [F1]_d, eq. 7
+            a = g.math("LESS_THAN", _feature_distance(g, y, cost_off), threshold)  # [F1]_d, eq. 7
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
         alpha_sum = acc
@@ -401,15 +393,7 @@ def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, co
         g._set(m.inputs["Rotation"], rot.outputs["Color"])
         g._set(m.inputs["Scale"], size)
         y = g.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
-        if cost_off & 1:  # bench: no Voronoi (distance to the cell centre)
-            dist = g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
-        else:
-            vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
-            vor.inputs["Scale"].default_value = 1.0
-            vor.inputs["Randomness"].default_value = 1.0
-            g._set(vor.inputs["Vector"], y)
-            dist = vor.outputs["Distance"]
-        alpha = g.math("LESS_THAN", dist, threshold)                           # [F1]_d, eq. 7
+        alpha = g.math("LESS_THAN", _feature_distance(g, y, cost_off), threshold)  # [F1]_d, eq. 7
         lobe = _frame_lobe(g, lobe_data, name, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint,
                            cost_off)
         mix = g.node("ShaderNodeMixShader")
@@ -438,6 +422,18 @@ def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, ti
 #: (l a + w b, l c + w d) with these factors of (cos Θ, sin Θ, ξ) (``layer_coordinates``)
 _LOC_FACTORS = {"la": lambda c, s_, xi: -c * float(xi[0]), "lb": lambda c, s_, xi: s_ * float(xi[1]),
                 "lc": lambda c, s_, xi: -s_ * float(xi[0]), "ld": lambda c, s_, xi: -c * float(xi[1])}
+
+
+def _feature_distance(g, y, cost_off: int = 0) -> bpy.types.NodeSocket:
+    """F1: distance from the layer coordinates ``y`` (eq. 7) to the nearest hashed feature point (Cycles' 2D
+    Voronoi, randomness 1: the OSL path's placement); ``cost_off & 1`` (bench only): the cell centre instead."""
+    if cost_off & 1:
+        return g.vmath("LENGTH", g.vmath("SUBTRACT", g.vmath("FRACTION", y), (0.5, 0.5, 0.0)))
+    vor = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+    vor.inputs["Scale"].default_value = 1.0
+    vor.inputs["Randomness"].default_value = 1.0
+    g._set(vor.inputs["Vector"], y)
+    return vor.outputs["Distance"]
 
 
 def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None, lw=None) -> bpy.types.NodeSocket:

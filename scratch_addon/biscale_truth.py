@@ -9,6 +9,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from . import render
 from .materials import ensure_nodes, new_material
 
 __all__ = ["small_scale_blender_material", "explicit_tile_plane", "direction_world"]
@@ -67,17 +68,7 @@ def explicit_tile_plane(scene, tile, materials, n: int = 300, size: float = 4.0,
     offs = np.concatenate([ij * P, np.zeros((len(ij), 1))], 1)
     Vall = ((V[None] + offs[:, None]) * s - np.array([size / 2, size / 2, 0])).reshape(-1, 3)
     Fall = (F[None] + (np.arange(len(ij)) * len(V))[:, None, None]).reshape(-1, 3)
-    mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(len(Vall))
-    mesh.vertices.foreach_set("co", Vall.astype(np.float32).ravel())
-    mesh.loops.add(Fall.size)
-    mesh.loops.foreach_set("vertex_index", Fall.astype(np.int32).ravel())
-    mesh.polygons.add(len(Fall))
-    mesh.polygons.foreach_set("loop_start", (np.arange(len(Fall)) * 3).astype(np.int32))
-    mesh.polygons.foreach_set("loop_total", np.full(len(Fall), 3, np.int32))
-    mesh.polygons.foreach_set("material_index", np.tile(np.minimum(M, len(materials) - 1), len(ij)).astype(np.int32))
-    mesh.polygons.foreach_set("use_smooth", np.zeros(len(Fall), bool))   # flat: facet normals, as the bake
-    mesh.update()
+    mesh = render.flat_triangle_mesh(name, Vall, Fall, np.tile(np.minimum(M, len(materials) - 1), len(ij)))
     mesh.validate()
     for k, md in enumerate(materials):
         mesh.materials.append(small_scale_blender_material(md, f"{name} m{k}"))

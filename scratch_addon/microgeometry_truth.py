@@ -10,6 +10,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from . import render
 from .materials import new_material
 
 __all__ = ["mirror_material", "heightfield_tiles"]
@@ -42,16 +43,7 @@ def _tile_mesh(heights_um, pixel_um: float, scale: float, name: str):
     idx = (J * (nx + 1) + I)[:-1, :-1].ravel()
     a, b, c, d = idx, idx + 1, idx + nx + 1, idx + nx + 2
     F = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])   # counter-clockwise: normals up
-    mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(len(V))
-    mesh.vertices.foreach_set("co", V.astype(np.float32).ravel())
-    mesh.loops.add(F.size)
-    mesh.loops.foreach_set("vertex_index", F.astype(np.int32).ravel())
-    mesh.polygons.add(len(F))
-    mesh.polygons.foreach_set("loop_start", (np.arange(len(F)) * 3).astype(np.int32))
-    mesh.polygons.foreach_set("loop_total", np.full(len(F), 3, np.int32))
-    mesh.polygons.foreach_set("use_smooth", np.zeros(len(F), bool))   # facets: the surface itself
-    mesh.update()
+    mesh = render.flat_triangle_mesh(name, V, F)   # facets: the surface itself
     mesh.validate()
     return mesh
 

@@ -6,6 +6,7 @@ import os
 import time
 
 import bpy
+import numpy as np
 
 from ..precompute.tables import exr_io
 from . import materials
@@ -144,6 +145,25 @@ def add_light(scene, kind: str = "AREA", location=(2.0, -2.0, 3.0), energy: floa
     d = [t - l for t, l in zip(target, location)]
     obj.rotation_euler = (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0, math.atan2(d[1], d[0]) - math.pi / 2)
     return obj
+
+
+def flat_triangle_mesh(name: str, V, F, material_index=None) -> bpy.types.Mesh:
+    """A flat-shaded mesh of triangles ``F`` [n, 3] (indices into ``V`` [m, 3], metres), facet normals (the
+    explicit microgeometry of the ground-truth scenes), optional per-face ``material_index`` [n]."""
+    V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
+    mesh = bpy.data.meshes.new(name)
+    mesh.vertices.add(len(V))
+    mesh.vertices.foreach_set("co", V.astype(np.float32).ravel())
+    mesh.loops.add(F.size)
+    mesh.loops.foreach_set("vertex_index", F.astype(np.int32).ravel())
+    mesh.polygons.add(len(F))
+    mesh.polygons.foreach_set("loop_start", (np.arange(len(F)) * 3).astype(np.int32))
+    mesh.polygons.foreach_set("loop_total", np.full(len(F), 3, np.int32))
+    if material_index is not None:
+        mesh.polygons.foreach_set("material_index", np.asarray(material_index).astype(np.int32))
+    mesh.polygons.foreach_set("use_smooth", np.zeros(len(F), bool))
+    mesh.update()
+    return mesh
 
 
 def add_plane(scene, size: float = 2.0, material=None, name: str = "Plane", uv_size: float | None = None,
