@@ -382,7 +382,7 @@ def shader_group(src: str) -> bpy.types.ShaderNodeTree:
     text_existed = bpy.data.texts.get(text_name) is not None
     group = bpy.data.node_groups.new(name, "ShaderNodeTree")
     try:
-        script = osl_compile.script_node_from_source(group, text_name, src)
+        script = osl_compile.uv_script_node(group, text_name, src)   # + UV Map and UV Tangent -> Tangent
     except BaseException:
         bpy.data.node_groups.remove(group)
         text = bpy.data.texts.get(text_name)
@@ -390,17 +390,11 @@ def shader_group(src: str) -> bpy.types.ShaderNodeTree:
             bpy.data.texts.remove(text)
         raise
     script.name = script.label = SCRIPT_NODE_NAME
-    script.location = (200, 0)
-    uv = group.nodes.new("ShaderNodeUVMap")
-    uv.location = (-100, 150)
-    tangent = group.nodes.new("ShaderNodeTangent")
-    tangent.direction_type = "UV_MAP"
-    tangent.location = (-100, 0)
     if "UV" in script.inputs:
+        uv = next(n for n in group.nodes if n.bl_idname == "ShaderNodeUVMap")
         group.links.new(uv.outputs["UV"], script.inputs["UV"])
-    group.links.new(tangent.outputs["Tangent"], script.inputs["Tangent"])
     gin = group.nodes.new("NodeGroupInput")
-    gin.location = (-300, -200)
+    gin.location = (-600, -200)
     gout = group.nodes.new("NodeGroupOutput")
     gout.location = (450, 0)
     kinds = {"SHADER": "NodeSocketShader", "RGBA": "NodeSocketColor", "VALUE": "NodeSocketFloat",
