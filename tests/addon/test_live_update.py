@@ -400,6 +400,7 @@ def test_ui_cache_miss_shows_preview_tables_then_the_full_ones(addon, mat, monke
     real = sm.prepare
     monkeypatch.setattr(sm, "prepare", lambda spec, q="full": threads.append((threading.current_thread(), q))
                         or real(spec, q))
+    live._stats["last"] = None                 # an earlier test's update record is not this edit's
     mat.scratch.profile_value = 0.237          # never seen: a miss
     live._pending[mat.name] = 0.0              # the debounce is over
     seen = []
