@@ -471,29 +471,6 @@ def _prefix(img) -> str:
     return img.name.rsplit(" ", 1)[0]
 
 
-def _pad_rank(svm_lobes: dict, table_nodes, truncate: bool = False) -> dict:
-    """``svm_lobes`` with its θo basis zero-padded to the rank the node tree was built for (its ``Btheta``
-    image's rows: one fetch pair per basis function), so a material whose new tables need fewer basis
-    functions updates in place; the padded functions add exactly 0.  A higher rank changes the graph
-    (``NeedsRebuild``), except for ``truncate`` (preview tables: their last functions are dropped)."""
-    basis = svm_lobes.get("basis")
-    built = next((n.image.size[1] for n in table_nodes if _prefix(n.image) == scratch_svm.TABLE_IMAGE_PREFIX + "Btheta"),
-                 None)
-    if basis is None or built is None or basis.shape[0] == built:
-        return svm_lobes
-    K = int(basis.shape[0])
-    if K > built and truncate:   # the SVD basis is ordered: the best rank-``built`` part of a preview
-        return dict(svm_lobes, coef=np.asarray(svm_lobes["coef"])[:, :, :built], basis=basis[:built])
-    if K > built:
-        raise NeedsRebuild(f"the θo basis grows from {built} to {K} functions")
-    coef = np.asarray(svm_lobes["coef"])
-    pad_c = np.zeros(coef.shape[:2] + (built,) + coef.shape[3:])
-    pad_c[:, :, :K] = coef
-    pad_b = np.zeros((built,) + basis.shape[1:])
-    pad_b[:K] = basis
-    return dict(svm_lobes, coef=pad_c, basis=pad_b)
-
-
 class NeedsRebuild(Exception):
     """``apply_tables`` cannot update this material in place (its node tree has another structure)."""
 
@@ -580,7 +557,6 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
             _set_source(script, prepared["src"])
         # new (content-hashed, shared) images; the nodes are repointed, no image another material uses is rewritten
         preview = prepared.get("quality") == "preview"
-        svm_lobes = _pad_rank(svm_lobes, table_nodes, truncate=preview)
         new = {img.name.rsplit(" ", 1)[0]: img for img in scratch_svm.table_images(material.name, svm_lobes).values()}
         rows = [n for n in tree.nodes if n.get(scratch_svm.TABLE_ROWS)]
         for node in table_nodes:
@@ -594,8 +570,6 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         S = int(np.asarray(svm_lobes["cdf"]).shape[0])   # adaptive φo nodes: rows of the A, C, Y images
         for node in rows:   # row = up / S + row_k: row_k ((k + 0.5) / S) comes from the N image
             node.inputs[1].default_value = 1.0 / S
-            if not node.inputs[2].is_linked:
-                node.inputs[2].default_value = 0.5 / S
         ax = float(svm_lobes["alpha_x"])
         rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
         for node in tree.nodes:
