@@ -60,7 +60,7 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
     size is a socket, and the layer-pick constants; returns how many nodes were written."""
     n = 0
     race = {}
-    for node in tree.nodes:
+    for node in tree_nodes(tree):
         for tag in (node.get(LAYER_CONST) or "").split(";"):
             parts = tag.split("/")
             if len(parts) != 3 or parts[0] != twin or int(parts[2]) >= len(theta_k):
@@ -367,42 +367,102 @@ def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, co
     Mix(α_π(i), <the rest of the race>, ρ_π(i)) ending on the base; the first covering layer is uniform over
     the covering ones (the OSL path's pick: probability α_k / ᾱ), and Cycles' SVM skips the rest of the race
     as soon as one covers (NODE_JUMP_IF_ONE): with coverage c̄ per layer the expected number of Voronoi
-    evaluations is (N + 1) E[1 / (|C| + 1)] instead of N (fig1c at 16 layers: 3.7).  Each position holds its
+    evaluations is (N + 1) E[1 / (|C| + 1)] instead of N (fig1c at 16 layers: 3.7).  Each position runs its
     own copy of the frame and table lobe (only one runs per sample; EEVEE, which runs every node, keeps the
-    single picked-layer graph of ``build``)."""
+    single picked-layer graph of ``build``).
+
+    The positions are instances of one node group (``race_group``; Cycles inlines groups at sync, so the
+    compiled graph is the one a copy per position gives): Blender's cost of adding a node grows with the
+    tree's size, and 32 copies (1,800 nodes) took a minute to build."""
     n = layers.n_layers
-    img_order, img_rot, img_off = race_images(theta_k, xi_k)
     size = (float(layers.length), float(layers.width), 1.0)
     if "length" in controls or "width" in controls:
         size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
     dens = controls.get("density", None)
     threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
-
-    def tex(img, vector):
-        node = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
-        g._set(node.inputs["Vector"], vector)
-        return node
-
+    grp = race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin)
+    shared = {"UV": uv, "Size": size, "Threshold": threshold, "Normal": N, "Incoming": wo, "Tangent": t,
+              "h_layer": h_layer, "h_slice": h_slice, "h_lobe": h_lobe, "h_frac": h_frac}
+    if isinstance(tint, bpy.types.NodeSocket):
+        shared["Tint"] = tint
     race = base_socket
     for i in range(n - 1, -1, -1):
-        at = tex(img_order, g.combine((i + 0.5) / n, h_layer)).outputs["Color"]   # row floor(h P), column i
-        rot, off = tex(img_rot, at), tex(img_off, at)
-        rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/{i}", f"{twin}/race_off/{i}"
-        m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
-        g._set(m.inputs["Vector"], uv)
-        g._set(m.inputs["Rotation"], rot.outputs["Color"])
-        g._set(m.inputs["Scale"], size)
-        y = g.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
-        alpha = g.math("LESS_THAN", _feature_distance(g, y, cost_off), threshold)  # [F1]_d, eq. 7
-        lobe = _frame_lobe(g, lobe_data, name, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint,
-                           cost_off)
-        mix = g.node("ShaderNodeMixShader")
-        g._set(mix.inputs["Fac"], alpha)
+        pos = g.node("ShaderNodeGroup")
+        pos.node_tree = grp
+        pos.label = f"Race position {i}"
+        pos.inputs["Position"].default_value = float(i)
+        for key, value in shared.items():
+            g._set(pos.inputs[key], value)
         if race is not None:
-            g.tree.links.new(race, mix.inputs[1])
-        g.tree.links.new(lobe, mix.inputs[2])
-        race = mix.outputs[0]
+            g.tree.links.new(race, pos.inputs["Rest"])
+        race = pos.outputs["Shader"]
     return race
+
+
+#: custom property marking the node group of one race position (``race_group``; one per built material, named
+#: "<material>.scratch race")
+RACE_GROUP = "scratch_race_group"
+_RACE_INPUTS = (("Position", "NodeSocketFloat"), ("UV", "NodeSocketVector"), ("Size", "NodeSocketVector"),
+                ("Threshold", "NodeSocketFloat"), ("Normal", "NodeSocketVector"), ("Incoming", "NodeSocketVector"),
+                ("Tangent", "NodeSocketVector"), ("h_layer", "NodeSocketFloat"), ("h_slice", "NodeSocketFloat"),
+                ("h_lobe", "NodeSocketFloat"), ("h_frac", "NodeSocketFloat"), ("Tint", "NodeSocketColor"),
+                ("Rest", "NodeSocketShader"))
+
+
+def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.types.NodeTree:
+    """One position of ``_layer_race`` as a node group: Mix(α, Rest, ρ) of the layer the order image names at
+    column ``Position`` (the layer's rotation and offset from the constants images, eq. 7; F1 below the
+    density threshold; the layer's table lobe).  Its two constants-image nodes carry the ``race_rot`` /
+    ``race_off`` tags of ``set_layer_constants``; the table nodes the tags of ``apply_tables``."""
+    from . import add_socket
+
+    grp = bpy.data.node_groups.new(f"{name}.scratch race", "ShaderNodeTree")
+    grp[RACE_GROUP] = True
+    for key, kind in _RACE_INPUTS:
+        add_socket(grp, key, "INPUT", kind)
+    add_socket(grp, "Shader", "OUTPUT", "NodeSocketShader")
+    gg = _G(grp)
+    gi = gg.node("NodeGroupInput")
+    go = gg.node("NodeGroupOutput")
+    inp = gi.outputs
+    img_order, img_rot, img_off = race_images(theta_k, xi_k)
+
+    def tex(img, vector):
+        node = gg.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        gg._set(node.inputs["Vector"], vector)
+        return node
+
+    # row floor(h_layer P), column Position of the order image: the layer at this position
+    at = tex(img_order, gg.combine(gg.math("MULTIPLY_ADD", inp["Position"], 1.0 / n, 0.5 / n),
+                                   inp["h_layer"])).outputs["Color"]
+    rot, off = tex(img_rot, at), tex(img_off, at)
+    rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/0", f"{twin}/race_off/0"
+    m = gg.node("ShaderNodeMapping", vector_type="TEXTURE")
+    gg._set(m.inputs["Vector"], inp["UV"])
+    gg._set(m.inputs["Rotation"], rot.outputs["Color"])
+    gg._set(m.inputs["Scale"], inp["Size"])
+    y = gg.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
+    alpha = gg.math("LESS_THAN", _feature_distance(gg, y, cost_off), inp["Threshold"])  # [F1]_d, eq. 7
+    tint_in = inp["Tint"] if isinstance(tint, bpy.types.NodeSocket) else tint
+    lobe = _frame_lobe(gg, lobe_data, name, rot.outputs["Alpha"], inp["Normal"], inp["Incoming"], inp["Tangent"],
+                       inp["h_slice"], inp["h_lobe"], inp["h_frac"], tint_in, cost_off)
+    mix = gg.node("ShaderNodeMixShader")
+    gg._set(mix.inputs["Fac"], alpha)
+    grp.links.new(inp["Rest"], mix.inputs[1])
+    grp.links.new(lobe, mix.inputs[2])
+    grp.links.new(mix.outputs[0], go.inputs["Shader"])
+    return grp
+
+
+def tree_nodes(tree):
+    """The nodes of ``tree`` and of the race-position groups (``race_group``) its group nodes use, each once."""
+    seen = set()
+    for node in tree.nodes:
+        yield node
+        grp = node.node_tree if node.bl_idname == "ShaderNodeGroup" else None
+        if grp is not None and grp.get(RACE_GROUP) and grp.as_pointer() not in seen:
+            seen.add(grp.as_pointer())
+            yield from grp.nodes
 
 
 def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, tint, cost_off):

@@ -515,6 +515,21 @@ def prepare(params: ScratchParams, quality: str = "full") -> dict:
     return dict(tab, src=src, quality=quality)
 
 
+def _own_race_groups(tree) -> list:
+    """Point ``tree``'s race positions (``scratch_svm.race_group``) at a fresh copy of their group before an
+    in-place update edits it: a copied material shares the group, and a failed update must leave the old
+    group as it was (``transaction`` restores the group nodes' pointers and removes the copy; on success it
+    drops the old group when nothing uses it).  Returns [(copy, the old group's name)]."""
+    copies = {}
+    for node in tree.nodes:
+        grp = node.node_tree if node.bl_idname == "ShaderNodeGroup" else None
+        if grp is not None and grp.get(scratch_svm.RACE_GROUP):
+            if grp.as_pointer() not in copies:
+                copies[grp.as_pointer()] = (grp.copy(), grp.name)
+            node.node_tree = copies[grp.as_pointer()][0]
+    return list(copies.values())
+
+
 #: generated OSL sources by settings (a value dragged back generates no second time)
 _SOURCES: dict = {}
 
@@ -534,11 +549,14 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
     script = scratch_script(material)
     if (prepared["src"] is None) != (script is None):
         raise NeedsRebuild("the OSL script node is missing")
-    table_nodes = [n for n in tree.nodes if n.bl_idname == "ShaderNodeTexImage" and n.image is not None
-                   and n.image.name.startswith(scratch_svm.TABLE_IMAGE_PREFIX)]
+    table_nodes = [n for n in scratch_svm.tree_nodes(tree) if n.bl_idname == "ShaderNodeTexImage"
+                   and n.image is not None and n.image.name.startswith(scratch_svm.TABLE_IMAGE_PREFIX)]
     if not table_nodes:
         raise NeedsRebuild("no table images")
     with transaction.rebuild(material, replace=False):
+        race_groups = _own_race_groups(tree)
+        table_nodes = [n for n in scratch_svm.tree_nodes(tree) if n.bl_idname == "ShaderNodeTexImage"
+                       and n.image is not None and n.image.name.startswith(scratch_svm.TABLE_IMAGE_PREFIX)]
         base_old = tree.nodes.get(scratch_controls.BASE_NODE_NAME)
         base_new = _base_node_unnamed(tree, params)
         try:
@@ -558,7 +576,7 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         # new (content-hashed, shared) images; the nodes are repointed, no image another material uses is rewritten
         preview = prepared.get("quality") == "preview"
         new = {img.name.rsplit(" ", 1)[0]: img for img in scratch_svm.table_images(material.name, svm_lobes).values()}
-        rows = [n for n in tree.nodes if n.get(scratch_svm.TABLE_ROWS)]
+        rows = [n for n in scratch_svm.tree_nodes(tree) if n.get(scratch_svm.TABLE_ROWS)]
         for node in table_nodes:
             img = new.get(node.image.name.rsplit(" ", 1)[0])
             if img is None or img.size[0] != node.image.size[0]:
@@ -572,7 +590,7 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
             node.inputs[1].default_value = 1.0 / S
         ax = float(svm_lobes["alpha_x"])
         rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
-        for node in tree.nodes:
+        for node in scratch_svm.tree_nodes(tree):
             if node.get(scratch_svm.TABLE_GLOSSY):
                 node.inputs["Roughness"].default_value = float(rough)
                 node.inputs["Anisotropy"].default_value = float(aniso)
@@ -588,4 +606,7 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         _store_params(material, params, prepared["lobes"])
         if preview:
             material[PREVIEW_KEY] = 1
+    for copy, name in race_groups:   # the old group is gone unless another material uses it: take its name back
+        if name not in bpy.data.node_groups:
+            copy.name = name
     return material

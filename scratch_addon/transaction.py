@@ -101,6 +101,13 @@ def _links(tree) -> set:
 #: name prefixes of the datablocks builders share between materials by content hash
 #: (``scratch_material.shader_text_name``, ``node_groups.scratch_svm.table_images``, ``scratch_material.shader_group``)
 SHARED_PREFIXES = ("scratch_svbrdf.", "Scratch table ", "Scratch OSL ")
+#: custom property of the per-material node groups an in-place update replaces by a copy
+#: (``node_groups.scratch_svm.race_group``): dropped at commit when nothing uses them any more
+_PER_MATERIAL_GROUP = "scratch_race_group"
+
+
+def _shared(db) -> bool:
+    return db.name.startswith(SHARED_PREFIXES) or bool(isinstance(db, bpy.types.NodeTree) and db.get(_PER_MATERIAL_GROUP))
 
 
 def _shared_used(n) -> list:
@@ -110,21 +117,22 @@ def _shared_used(n) -> list:
         return [n.script]
     if n.bl_idname == "ShaderNodeTexImage":
         return [n.image]
-    if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and n.node_tree.name.startswith(SHARED_PREFIXES):
-        return [n.node_tree] + [m.script for m in n.node_tree.nodes if m.bl_idname == "ShaderNodeScript"]
+    if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and _shared(n.node_tree):
+        return [n.node_tree] + [m.script for m in n.node_tree.nodes if m.bl_idname == "ShaderNodeScript"] + \
+            [m.image for m in n.node_tree.nodes if m.bl_idname == "ShaderNodeTexImage" and m.image is not None]
     return []
 
 
 def _owned(material, nodes) -> list:
-    """Text and Image datablocks used by ``nodes`` and named after ``material`` (what a builder may
-    look up by name and overwrite)."""
+    """Text, Image and node-group datablocks used by ``nodes`` and named after ``material`` (what a builder
+    may look up by name and overwrite)."""
     prefix = material.name + "."
     out = []
+    kinds = {"ShaderNodeScript": "script", "ShaderNodeTexImage": "image", "ShaderNodeGroup": "node_tree"}
     for n in nodes:
-        for attr in ("script", "image"):
-            db = getattr(n, attr, None) if n.bl_idname in ("ShaderNodeScript", "ShaderNodeTexImage") else None
-            if db is not None and db.name.startswith(prefix) and db not in out:
-                out.append(db)
+        db = getattr(n, kinds[n.bl_idname], None) if n.bl_idname in kinds else None
+        if db is not None and db.name.startswith(prefix) and db not in out:
+            out.append(db)
     return out
 
 
@@ -165,8 +173,7 @@ class _State:
         self.scripts = {n.as_pointer(): (n.script.as_string(), n.bytecode, n.bytecode_hash, n.script)
                         for n in self.nodes if n.bl_idname == "ShaderNodeScript" and n.script is not None}
         # shared, content-hashed datablocks the nodes use now (dropped at commit when nothing uses them any more)
-        self.shared = [db for n in self.nodes for db in _shared_used(n)
-                       if db is not None and db.name.startswith(SHARED_PREFIXES)]
+        self.shared = [db for n in self.nodes for db in _shared_used(n) if db is not None and _shared(db)]
         self.links = _links(self.tree)
         self.owned = [(db, db.name) for db in _owned(material, self.nodes)] if replace else []
         self.data = _datablocks()
@@ -181,10 +188,14 @@ class _State:
         if self.replace:
             for node in self.nodes:
                 self.tree.nodes.remove(node)
+        removed, owned = set(), [(db.as_pointer(), db, name) for db, name in self.owned]
         for db in dict.fromkeys(self.shared):   # a shader text / table image no material uses any more
             if db.users <= int(db.use_fake_user):
+                removed.add(db.as_pointer())
                 self._collection(db).remove(db)
-        for db, name in self.owned:
+        for ptr, db, name in owned:
+            if ptr in removed:   # (a per-material group is both)
+                continue
             taken = self._collection(db).get(name)
             if taken is not None and taken != db and db.users <= int(db.use_fake_user):
                 self._collection(db).remove(db)  # replaced by the builder's new one
