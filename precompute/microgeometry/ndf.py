@@ -195,9 +195,9 @@ def splat_table(mx: np.ndarray, my: np.ndarray, weights: np.ndarray, resolution:
     return np.bincount(idx, val, minlength=n_batch * R * R).reshape(n_batch, R, R)
 
 
-def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
-    """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
-    sums, float64) in place, ``_SPLAT_CHUNK`` points at a time (bounded temporaries).
+def _splat_cells(sx, sy, R: int):
+    """Bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each), ``_SPLAT_CHUNK`` points at a time
+    (bounded temporaries): yields ``(lo, acc)``, the node sums ``acc`` of the flat nodes ``lo : lo + len(acc)``.
 
     Per cell of the lower-left node ``(i0, j0)``: the count C and the sums X, Y, XY of tx, ty and tx ty, since
     the four bilinear weights are ``1 - tx - ty + tx ty``, ``tx - tx ty``, ``ty - tx ty`` and ``tx ty``."""
@@ -247,28 +247,14 @@ def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
         acc[1:] += X[:-1]
         acc[R:] += Y[:-R]
         acc[R + 1:] += XY[:-R - 1]
-        stop = min(hi, R * R)
-        flat[lo:stop] += acc[:stop - lo]
+        yield lo, acc[:min(hi, R * R) - lo]
 
 
-class _SlopeBatch:
-    """Collects slopes of several tiles and splats them ``_SPLAT_POINTS`` at a time (each splat costs
-    O(points + touched nodes), so tiny batches would pay the node span again and again)."""
-
-    def __init__(self, flat: np.ndarray, R: int):
-        self.flat, self.R, self.parts, self.n = flat, R, [], 0
-
-    def add(self, sx: np.ndarray, sy: np.ndarray) -> None:
-        self.parts.append((sx, sy))
-        self.n += sx.size
-        if self.n >= _SPLAT_POINTS:
-            self.flush()
-
-    def flush(self) -> None:
-        if self.parts:
-            _splat_slopes(self.flat, np.concatenate([p[0] for p in self.parts]),
-                          np.concatenate([p[1] for p in self.parts]), self.R)
-        self.parts, self.n = [], 0
+def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
+    """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
+    sums, float64) in place (see :func:`_splat_cells`)."""
+    for lo, acc in _splat_cells(sx, sy, R):
+        flat[lo:lo + acc.size] += acc
 
 
 def _normalised_table(flat: np.ndarray, R: int, kind, info) -> NDFTable:
@@ -363,9 +349,8 @@ def _full_window_moments(sig_px: float, radius: int) -> tuple[float, float]:
 
 #: core tile side (px) of the streamed filtered NDF, points per band of the naive NDF, and the largest
 #: filter (sigma in pixels: its window is 8 sigma + 1 px wide; wider filters need a coarser scan)
-_TILE = 512
+_TILE = 1024
 _TILE_POINTS = 1 << 20
-_SPLAT_POINTS = 1 << 22
 _SPLAT_CHUNK = 1 << 20
 #: largest padded FFT of one Kirchhoff patch (points): ~160 bytes per point of working memory
 MAX_KIRCHHOFF_FFT = 1 << 21
@@ -478,8 +463,10 @@ def _block_slopes(hf: HeightField, core, sig_px: float, radius: int, min_weight:
     return b, c, ok
 
 
-def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype):
-    """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted)."""
+def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype,
+                    post=None):
+    """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted), or
+    ``post(core, dh/dx, dh/dy, ok)`` computed on the worker thread when ``post`` is given."""
     d = hf.pixel_um
     sig_px, radius = _check_sigma(sigma_um, d, hf.shape)
     if not (isinstance(min_weight, (int, float, np.integer, np.floating)) and 0.0 <= float(min_weight) < 1.0):
@@ -507,7 +494,11 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
             yy = np.arange(y0, y1)[:, None]
             xx = np.arange(x0, x1)[None, :]
             ok &= (yy >= nb) & (yy < ny - nb) & (xx >= nb) & (xx < nx - nb)
-        return core, b / d - pb, c / d - pc, ok
+        b /= d
+        b -= pb
+        c /= d
+        c -= pc
+        return (core, b, c, ok) if post is None else post(core, b, c, ok)
 
     workers = 1 if tile is None else _workers()
     yield from ordered_map(job, _tiles(ny, nx, T), workers)
@@ -560,12 +551,18 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
     hf, plane = _prepare(heights, pixel_um, detilt)
     R = resolution
     flat = np.zeros(R * R)
+
+    def splat(core, b, c, ok):  # on the worker thread: the tile's node sums (flat index range + sums)
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < ok.size:
+            b, c = b[ok], c[ok]
+        return n_ok, list(_splat_cells(b, c, R))
+
     n = 0
-    batch = _SlopeBatch(flat, R)
-    for _, b, c, ok in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype):
-        n += int(ok.sum())
-        batch.add(b[ok], c[ok])
-    batch.flush()
+    for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat):
+        n += n_ok
+        for lo, acc in cells:
+            flat[lo:lo + acc.size] += acc
     if n == 0:
         raise ValueError("heights: no point has a well-conditioned local plane fit (too many missing points?)")
     return _normalised_table(flat, R, "filtered",
