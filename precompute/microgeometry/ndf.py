@@ -197,7 +197,8 @@ def splat_table(mx: np.ndarray, my: np.ndarray, weights: np.ndarray, resolution:
 
 def _splat_cells(sx, sy, R: int):
     """Bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each), ``_SPLAT_CHUNK`` points at a time
-    (bounded temporaries): yields ``(lo, acc)``, the node sums ``acc`` of the flat nodes ``lo : lo + len(acc)``.
+    (bounded temporaries): yields ``(j, i, acc)``, the node sums ``acc`` (2D) of the table's nodes
+    ``[j : j + acc.shape[0], i : i + acc.shape[1]]``.
 
     Per cell of the lower-left node ``(i0, j0)``: the count C and the sums X, Y, XY of tx, ty and tx ty, since
     the four bilinear weights are ``1 - tx - ty + tx ty``, ``tx - tx ty``, ``ty - tx ty`` and ``tx ty``."""
@@ -206,33 +207,41 @@ def _splat_cells(sx, sy, R: int):
     h = 2.0 / (R - 1)
     for a in range(0, sx.size, _SPLAT_CHUNK):
         px, py = sx[a:a + _SPLAT_CHUNK], sy[a:a + _SPLAT_CHUNK]
-        s = 1.0 + px * px
-        s += py * py
-        np.sqrt(s, out=s)
-        fx = px / s       # -m_x
-        fy = py / s       # -m_y
-        keep = fx * fx + fy * fy < 1.0  # False only for slopes so steep that m_z rounds to 0
-        if not keep.all():
-            fx, fy = fx[keep], fy[keep]
-            if not fx.size:
+        q = px * px
+        q += py * py      # |slope|^2
+        if not q.max() < 1e15:  # slopes so steep that m_z rounds to 0 (|m| = 1 on the disk's rim): dropped
+            keep = q < 1e15
+            px, py, q = px[keep], py[keep], q[keep]
+            if not q.size:
                 continue
-        # node coordinates (m + 1) / h of m = -(fx, fy)
-        np.subtract(1.0, fx, out=fx)
-        fx /= h
+        q += 1.0
+        np.sqrt(q, out=q)
+        q *= h
+        np.reciprocal(q, out=q)  # 1 / (h sqrt(1 + |slope|^2))
+        # node coordinates (m + 1) / h of the normal m = -(px, py) / sqrt(1 + |slope|^2)
+        fx = px * q
+        np.subtract(1.0 / h, fx, out=fx)
         np.clip(fx, 0, R - 1 - 1e-9, out=fx)
-        np.subtract(1.0, fy, out=fy)
-        fy /= h
+        fy = py * q
+        np.subtract(1.0 / h, fy, out=fy)
         np.clip(fy, 0, R - 1 - 1e-9, out=fy)
-        base = fy.astype(np.int64)
-        fy -= base               # ty
-        base *= R
+        del q
+        j0 = fy.astype(np.int64)
+        fy -= j0                 # ty
         i0 = fx.astype(np.int64)
         fx -= i0                 # tx
-        base += i0
-        del i0
-        lo, hi = int(base.min()), int(base.max()) + R + 2
-        n = hi - lo
-        base -= lo
+        # node sums on the bounding box of the touched nodes (rows jl..jl+ny-1, columns il..il+W-1): with one
+        # spare row and column, the +1 / +W neighbours of flat box indices never wrap
+        jl, il = int(j0.min()), int(i0.min())
+        W = int(i0.max()) - il + 2
+        ny = int(j0.max()) - jl + 2
+        j0 -= jl
+        j0 *= W
+        i0 -= il
+        j0 += i0
+        base = j0
+        del i0, j0
+        n = ny * W
         acc = np.bincount(base, minlength=n).astype(np.float64)
         X = np.bincount(base, fx, minlength=n)
         Y = np.bincount(base, fy, minlength=n)
@@ -245,16 +254,17 @@ def _splat_cells(sx, sy, R: int):
         X -= XY
         Y -= XY
         acc[1:] += X[:-1]
-        acc[R:] += Y[:-R]
-        acc[R + 1:] += XY[:-R - 1]
-        yield lo, acc[:min(hi, R * R) - lo]
+        acc[W:] += Y[:-W]
+        acc[W + 1:] += XY[:-W - 1]
+        yield jl, il, acc.reshape(ny, W)
 
 
 def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
     """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
     sums, float64) in place (see :func:`_splat_cells`)."""
-    for lo, acc in _splat_cells(sx, sy, R):
-        flat[lo:lo + acc.size] += acc
+    table = flat.reshape(R, R)
+    for j, i, acc in _splat_cells(sx, sy, R):
+        table[j:j + acc.shape[0], i:i + acc.shape[1]] += acc
 
 
 def _normalised_table(flat: np.ndarray, R: int, kind, info) -> NDFTable:
@@ -574,6 +584,7 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
     hf, plane = _prepare(heights, pixel_um, detilt)
     R = resolution
     flat = np.zeros(R * R)
+    table = flat.reshape(R, R)
 
     def splat(core, b, c, ok):  # on the worker thread: the tile's node sums (flat index range + sums)
         n_ok = int(np.count_nonzero(ok))
@@ -584,8 +595,8 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
     n = 0
     for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat):
         n += n_ok
-        for lo, acc in cells:
-            flat[lo:lo + acc.size] += acc
+        for j, i, acc in cells:
+            table[j:j + acc.shape[0], i:i + acc.shape[1]] += acc
     if n == 0:
         raise ValueError("heights: no point has a well-conditioned local plane fit (too many missing points?)")
     return _normalised_table(flat, R, "filtered",
