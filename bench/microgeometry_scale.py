@@ -115,8 +115,9 @@ def main(argv=None) -> int:
     notes = (f"Median of {a.repeats} runs, fresh subprocess each, new/baseline interleaved; load average {load:.1f} "
              f"at the start and {load_end:.1f} at the end on the 2-core machine shared with other jobs: wall times "
              "are inflated and noisy (a process gets a fraction of a core), so compare the CPU columns "
-             "(process CPU time of the call, all threads, user + system) and the ratios. On an idle 2-core "
-             "machine the wall time is about CPU / 1.5-2 (two worker threads). Peak = max VmHWM over the runs "
+             "(process CPU time of the call, all threads, user + system) and the ratios. The CPU time is about "
+             "the wall time of one dedicated core (contention on the loaded machine inflates it, so it is an "
+             "upper estimate; two idle cores share the tiles). Peak = max VmHWM over the runs "
              "(whole process, test surface included). 'rel L1' = table difference new vs baseline. Baseline "
              f"skipped above {a.baseline_max}^2. For scale: a bare scipy rfft2 of one 4096^2 float32 array takes "
              f"{fft['cpu']:.3f} s CPU ({fft['wall']:.3f} s wall) in the same run.")
