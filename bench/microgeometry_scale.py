@@ -29,13 +29,31 @@ n = {n}
 hf = heightfield.gaussian_surface((n, n), 0.5, 0.2, 3.0, seed=1)
 h = np.array(hf.heights)
 t0 = time.perf_counter()
+c0 = time.process_time()
 if {what!r} == "filtered":
     T = ndf.filtered_ndf(h, 0.5, sigma_um=1.0)
 else:
     T = ndf.kirchhoff_ndf(h, 0.5, wavelength_um=0.555, patch_um=70.0, resolution=257)
 wall = time.perf_counter() - t0
+cpu = time.process_time() - c0
 np.save({out!r}, np.asarray(T.table, np.float64))
-print(json.dumps(dict(wall=wall, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024))))
+print(json.dumps(dict(wall=wall, cpu=cpu, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024))))
+"""
+
+
+_FFT = """
+import json, sys, time
+import numpy as np
+from scipy import fft as sfft
+h = np.random.default_rng(1).standard_normal((4096, 4096)).astype(np.float32)
+sfft.rfft2(h[:64, :64])
+w, c = [], []
+for _ in range(3):
+    t0, c0 = time.perf_counter(), time.process_time()
+    sfft.rfft2(h)
+    w.append(time.perf_counter() - t0)
+    c.append(time.process_time() - c0)
+print(json.dumps(dict(wall=min(w), cpu=min(c))))
 """
 
 
@@ -57,12 +75,15 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline", default=None, help="directory of the baseline tree (optional)")
     ap.add_argument("--baseline-max", type=int, default=2048, help="largest side run on the baseline")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--filtered", type=int, nargs="+", default=[512, 1024, 2048, 4096])
-    ap.add_argument("--kirchhoff", type=int, nargs="+", default=[256, 512, 1024])
+    ap.add_argument("--filtered", type=int, nargs="*", default=[512, 1024, 2048, 4096])
+    ap.add_argument("--kirchhoff", type=int, nargs="*", default=[256, 512, 1024])
     a = ap.parse_args(argv)
     if a.quick:
         a.filtered, a.kirchhoff, a.repeats = [256, 512], [128], 1
     load = os.getloadavg()[0]
+    fft = json.loads(subprocess.run([sys.executable, "-c", _FFT], capture_output=True, text=True,
+                                    check=True).stdout.strip().splitlines()[-1])
+    print("bare rfft2 4096^2 float32:", fft, flush=True)
     rows, pts = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for what, sizes in (("filtered", a.filtered), ("kirchhoff", a.kirchhoff)):
@@ -79,28 +100,41 @@ def main(argv=None) -> int:
                 if old:
                     A, B = np.load(os.path.join(tmp, "new.npy")), np.load(os.path.join(tmp, "old.npy"))
                     err = float(np.abs(A - B).sum() / max(np.abs(B).sum(), 1e-300))
-                tn = statistics.median(r["wall"] for r in new) if new else float("nan")
+                med = lambda rs, key: statistics.median(r[key] for r in rs) if rs else float("nan")  # noqa: E731
+                tn, cn, to, co = med(new, "wall"), med(new, "cpu"), med(old, "wall"), med(old, "cpu")
                 mn = max(r["maxrss"] for r in new) / 2**20 if new else float("nan")
-                to = statistics.median(r["wall"] for r in old) if old else float("nan")
                 mo = max(r["maxrss"] for r in old) / 2**20 if old else float("nan")
-                rows.append([what, f"{n}^2", f"{tn:.2f}", f"{mn:.0f}", f"{to:.2f}" if old else "-",
-                             f"{mo:.0f}" if old else "-", f"{to / tn:.2f}" if old else "-", f"{err:.1e}" if old else "-"])
-                pts.append((what, n, tn, mn))
+                b = bool(old)
+                rows.append([what, f"{n}^2", f"{tn:.2f}", f"{cn:.2f}", f"{mn:.0f}",
+                             f"{to:.2f}" if b else "-", f"{co:.2f}" if b else "-", f"{mo:.0f}" if b else "-",
+                             f"{to / tn:.2f}" if b else "-", f"{co / cn:.2f}" if b else "-",
+                             f"{err:.1e}" if b else "-"])
+                pts.append((what, n, tn, mn, cn))
                 print(rows[-1], flush=True)
+    load_end = os.getloadavg()[0]
     notes = (f"Median of {a.repeats} runs, fresh subprocess each, new/baseline interleaved; load average {load:.1f} "
-             "at the start on the 2-core machine shared with other jobs (wall times are inflated and noisy: "
-             "compare the ratio column). Peak = max ru_maxrss over the runs (whole process). 'rel L1' = table "
-             "difference new vs baseline (float32 tiles vs float64 whole field). Baseline skipped above "
-             f"{a.baseline_max}^2 (it needs several GiB there).")
-    report("microgeometry_scale", ["NDF", "scan", "new s", "new peak MiB", "baseline s", "baseline peak MiB",
-                                   "speed-up", "rel L1 vs baseline"], rows, notes)
+             f"at the start and {load_end:.1f} at the end on the 2-core machine shared with other jobs: wall times "
+             "are inflated and noisy (a process gets a fraction of a core), so compare the CPU columns "
+             "(process CPU time of the call, all threads, user + system) and the ratios. The CPU time is about "
+             "the wall time of one dedicated core (contention on the loaded machine inflates it, so it is an "
+             "upper estimate; two idle cores share the tiles). Peak = max VmHWM over the runs "
+             "(whole process, test surface included). 'rel L1' = table difference new vs baseline. Baseline "
+             f"skipped above {a.baseline_max}^2. For scale: a bare scipy rfft2 of one 4096^2 float32 array takes "
+             f"{fft['cpu']:.3f} s CPU ({fft['wall']:.3f} s wall) in the same run.")
+    report("microgeometry_scale", ["NDF", "scan", "new s", "new CPU s", "new peak MiB", "baseline s",
+                                   "baseline CPU s", "baseline peak MiB", "speed-up wall", "speed-up CPU",
+                                   "rel L1 vs baseline"], rows, notes)
     plt = pyplot()
     fig, ax = plt.subplots(1, 2, figsize=(8, 3.2))
     for what in ("filtered", "kirchhoff"):
         p = [q for q in pts if q[0] == what]
-        ax[0].loglog([q[1] ** 2 for q in p], [q[2] for q in p], "o-", label=what)
+        if not p:
+            continue
+        ax[0].loglog([q[1] ** 2 for q in p], [q[2] for q in p], "o-", label=f"{what} wall")
+        ax[0].loglog([q[1] ** 2 for q in p], [q[4] for q in p], "s--", label=f"{what} CPU")
         ax[1].loglog([q[1] ** 2 for q in p], [q[3] for q in p], "o-", label=what)
-    ax[0].set_xlabel("points"), ax[0].set_ylabel("wall s"), ax[1].set_xlabel("points"), ax[1].set_ylabel("peak MiB")
+    ax[0].set_xlabel("points"), ax[0].set_ylabel("s"), ax[1].set_xlabel("points"), ax[1].set_ylabel("peak MiB")
+    ax[0].set_title(f"load {load:.0f}-{load_end:.0f}, 2 cores", fontsize=8)
     ax[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out_path("microgeometry_scale.png"), dpi=120)

@@ -77,10 +77,13 @@ class HeightField:
         if not (np.isfinite(p) and 1e-6 <= p <= 1e6):
             raise HeightFieldError(f"pixel_um: must be a finite pixel size in [1e-6, 1e6] micrometres, got {self.pixel_um!r}")
         h = np.array(h, dtype=np.float64)  # own copy
-        np.copyto(h, np.nan, where=np.isinf(h))  # +-inf from instruments are missing points too
-        if not np.any(np.isfinite(h)):
+        hi, lo = np.fmax.reduce(h, axis=None), np.fmin.reduce(h, axis=None)  # NaN-ignoring, no temporaries
+        if not (np.isfinite(hi) and np.isfinite(lo)):
+            np.copyto(h, np.nan, where=np.isinf(h))  # +-inf from instruments are missing points too
+            hi, lo = np.fmax.reduce(h, axis=None), np.fmin.reduce(h, axis=None)
+        if np.isnan(hi):
             raise HeightFieldError("heights: every point is missing (NaN)")
-        big = float(np.nanmax(np.abs(h)))
+        big = float(max(hi, -lo))
         if big > MAX_HEIGHT_UM:
             raise HeightFieldError(f"heights: values up to {big:.3g} µm exceed +-{MAX_HEIGHT_UM:g} µm (1 km); "
                                    "wrong units? (height_scale converts to micrometres)")
@@ -157,39 +160,40 @@ _ROWS = 256  # rows per chunk of the streamed plane fit (bounded temporaries on 
 def fit_plane(heights: np.ndarray, pixel_um: float) -> Plane:
     """Least-squares plane through the valid (finite) points, from streamed sums over row chunks.
 
-    Normal equations of ``a + b (x - x0) + c (y - y0)`` in centred coordinates; no ``(N, 3)`` design
-    matrix, so memory stays O(row chunk) on large scans.
+    Normal equations of ``a + b (x - x0) + c (y - y0)`` (``x0, y0`` the mean position of the valid points):
+    one pass accumulates the point count and the sums of x, y, x^2, xy, y^2, h, xh, yh about the grid's centre
+    (matrix-vector products per row chunk, no boolean copies), then centres them on ``(x0, y0)``.  No
+    ``(N, 3)`` design matrix, so memory stays O(row chunk) on large scans.
     """
     h = np.asarray(heights)
     ny, nx = h.shape
     d = float(pixel_um)
-    xs = np.arange(nx) * d
-    sums = np.zeros(6)  # n, sum x, sum y, sum h, then refined below
+    xp, yp = 0.5 * (nx - 1) * d, 0.5 * (ny - 1) * d  # provisional centre: keeps the sums well conditioned
+    xc = np.arange(nx) * d - xp
+    S = np.zeros(9)  # n, Sx, Sy, Sxx, Sxy, Syy, Sh, Sxh, Syh about (xp, yp)
     for r0 in range(0, ny, _ROWS):
         blk = np.asarray(h[r0:r0 + _ROWS], np.float64)
+        rows = blk.shape[0]
+        yc = np.arange(r0, r0 + rows) * d - yp
         ok = np.isfinite(blk)
-        y = np.arange(r0, r0 + blk.shape[0]) * d
-        cnt = ok.sum(1)
-        sums[0] += cnt.sum()
-        sums[1] += (ok * xs[None, :]).sum()
-        sums[2] += (cnt * y).sum()
-    n = sums[0]
+        if ok.all():
+            cnt, colcnt, rowx, hz = np.full(rows, float(nx)), np.full(nx, float(rows)), np.full(rows, xc.sum()), blk
+        else:
+            okf = ok.astype(np.float64)
+            cnt, colcnt, rowx, hz = okf.sum(1), okf.sum(0), okf @ xc, np.where(ok, blk, 0.0)
+        hr = hz.sum(1)
+        S += [cnt.sum(), colcnt @ xc, cnt @ yc, colcnt @ (xc * xc), yc @ rowx, cnt @ (yc * yc),
+              hr.sum(), (hz @ xc).sum(), yc @ hr]
+    n = S[0]
     if n < 3:
         raise HeightFieldError("heights: need at least 3 measured points to fit a plane")
-    x0, y0 = sums[1] / n, sums[2] / n
-    A = np.zeros((3, 3))
-    rhs = np.zeros(3)
-    for r0 in range(0, ny, _ROWS):
-        blk = np.asarray(h[r0:r0 + _ROWS], np.float64)
-        ok = np.isfinite(blk)
-        xc = np.broadcast_to(xs[None, :] - x0, blk.shape)[ok]
-        yc = np.broadcast_to((np.arange(r0, r0 + blk.shape[0]) * d - y0)[:, None], blk.shape)[ok]
-        hv = blk[ok]
-        A += np.array([[xc.size, xc.sum(), yc.sum()], [0, (xc * xc).sum(), (xc * yc).sum()], [0, 0, (yc * yc).sum()]])
-        rhs += np.array([hv.sum(), (xc * hv).sum(), (yc * hv).sum()])
-    A = np.triu(A) + np.triu(A, 1).T
+    mx, my = S[1] / n, S[2] / n  # mean position of the valid points relative to (xp, yp)
+    A = np.array([[n, 0.0, 0.0],
+                  [0.0, S[3] - n * mx * mx, S[4] - n * mx * my],
+                  [0.0, S[4] - n * mx * my, S[5] - n * my * my]])
+    rhs = np.array([S[6], S[7] - mx * S[6], S[8] - my * S[6]])
     coef = np.linalg.lstsq(A, rhs, rcond=None)[0]  # lstsq: a line of points (rank 2) still gets a plane
-    return Plane(float(coef[0]), float(coef[1]), float(coef[2]), float(x0), float(y0), d)
+    return Plane(float(coef[0]), float(coef[1]), float(coef[2]), float(xp + mx), float(yp + my), d)
 
 
 def detilt(heights: np.ndarray, pixel_um: float) -> np.ndarray:

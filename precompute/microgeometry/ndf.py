@@ -195,9 +195,10 @@ def splat_table(mx: np.ndarray, my: np.ndarray, weights: np.ndarray, resolution:
     return np.bincount(idx, val, minlength=n_batch * R * R).reshape(n_batch, R, R)
 
 
-def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
-    """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
-    sums, float64) in place, ``_SPLAT_CHUNK`` points at a time (bounded temporaries).
+def _splat_cells(sx, sy, R: int):
+    """Bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each), ``_SPLAT_CHUNK`` points at a time
+    (bounded temporaries): yields ``(j, i, acc)``, the node sums ``acc`` (2D) of the table's nodes
+    ``[j : j + acc.shape[0], i : i + acc.shape[1]]``.
 
     Per cell of the lower-left node ``(i0, j0)``: the count C and the sums X, Y, XY of tx, ty and tx ty, since
     the four bilinear weights are ``1 - tx - ty + tx ty``, ``tx - tx ty``, ``ty - tx ty`` and ``tx ty``."""
@@ -206,33 +207,41 @@ def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
     h = 2.0 / (R - 1)
     for a in range(0, sx.size, _SPLAT_CHUNK):
         px, py = sx[a:a + _SPLAT_CHUNK], sy[a:a + _SPLAT_CHUNK]
-        s = 1.0 + px * px
-        s += py * py
-        np.sqrt(s, out=s)
-        fx = px / s       # -m_x
-        fy = py / s       # -m_y
-        keep = fx * fx + fy * fy < 1.0  # False only for slopes so steep that m_z rounds to 0
-        if not keep.all():
-            fx, fy = fx[keep], fy[keep]
-            if not fx.size:
+        q = px * px
+        q += py * py      # |slope|^2
+        if not q.max() < 1e15:  # slopes so steep that m_z rounds to 0 (|m| = 1 on the disk's rim): dropped
+            keep = q < 1e15
+            px, py, q = px[keep], py[keep], q[keep]
+            if not q.size:
                 continue
-        # node coordinates (m + 1) / h of m = -(fx, fy)
-        np.subtract(1.0, fx, out=fx)
-        fx /= h
+        q += 1.0
+        np.sqrt(q, out=q)
+        q *= h
+        np.reciprocal(q, out=q)  # 1 / (h sqrt(1 + |slope|^2))
+        # node coordinates (m + 1) / h of the normal m = -(px, py) / sqrt(1 + |slope|^2)
+        fx = px * q
+        np.subtract(1.0 / h, fx, out=fx)
         np.clip(fx, 0, R - 1 - 1e-9, out=fx)
-        np.subtract(1.0, fy, out=fy)
-        fy /= h
+        fy = py * q
+        np.subtract(1.0 / h, fy, out=fy)
         np.clip(fy, 0, R - 1 - 1e-9, out=fy)
-        base = fy.astype(np.int64)
-        fy -= base               # ty
-        base *= R
+        del q
+        j0 = fy.astype(np.int64)
+        fy -= j0                 # ty
         i0 = fx.astype(np.int64)
         fx -= i0                 # tx
-        base += i0
-        del i0
-        lo, hi = int(base.min()), int(base.max()) + R + 2
-        n = hi - lo
-        base -= lo
+        # node sums on the bounding box of the touched nodes (rows jl..jl+ny-1, columns il..il+W-1): with one
+        # spare row and column, the +1 / +W neighbours of flat box indices never wrap
+        jl, il = int(j0.min()), int(i0.min())
+        W = int(i0.max()) - il + 2
+        ny = int(j0.max()) - jl + 2
+        j0 -= jl
+        j0 *= W
+        i0 -= il
+        j0 += i0
+        base = j0
+        del i0, j0
+        n = ny * W
         acc = np.bincount(base, minlength=n).astype(np.float64)
         X = np.bincount(base, fx, minlength=n)
         Y = np.bincount(base, fy, minlength=n)
@@ -245,30 +254,17 @@ def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
         X -= XY
         Y -= XY
         acc[1:] += X[:-1]
-        acc[R:] += Y[:-R]
-        acc[R + 1:] += XY[:-R - 1]
-        stop = min(hi, R * R)
-        flat[lo:stop] += acc[:stop - lo]
+        acc[W:] += Y[:-W]
+        acc[W + 1:] += XY[:-W - 1]
+        yield jl, il, acc.reshape(ny, W)
 
 
-class _SlopeBatch:
-    """Collects slopes of several tiles and splats them ``_SPLAT_POINTS`` at a time (each splat costs
-    O(points + touched nodes), so tiny batches would pay the node span again and again)."""
-
-    def __init__(self, flat: np.ndarray, R: int):
-        self.flat, self.R, self.parts, self.n = flat, R, [], 0
-
-    def add(self, sx: np.ndarray, sy: np.ndarray) -> None:
-        self.parts.append((sx, sy))
-        self.n += sx.size
-        if self.n >= _SPLAT_POINTS:
-            self.flush()
-
-    def flush(self) -> None:
-        if self.parts:
-            _splat_slopes(self.flat, np.concatenate([p[0] for p in self.parts]),
-                          np.concatenate([p[1] for p in self.parts]), self.R)
-        self.parts, self.n = [], 0
+def _splat_slopes(flat: np.ndarray, sx, sy, R: int) -> None:
+    """Add the bilinear splat of the normals of slopes ``(sx, sy)`` (unit weight each) to ``flat`` (R*R node
+    sums, float64) in place (see :func:`_splat_cells`)."""
+    table = flat.reshape(R, R)
+    for j, i, acc in _splat_cells(sx, sy, R):
+        table[j:j + acc.shape[0], i:i + acc.shape[1]] += acc
 
 
 def _normalised_table(flat: np.ndarray, R: int, kind, info) -> NDFTable:
@@ -365,7 +361,6 @@ def _full_window_moments(sig_px: float, radius: int) -> tuple[float, float]:
 #: filter (sigma in pixels: its window is 8 sigma + 1 px wide; wider filters need a coarser scan)
 _TILE = 512
 _TILE_POINTS = 1 << 20
-_SPLAT_POINTS = 1 << 22
 _SPLAT_CHUNK = 1 << 20
 #: largest padded FFT of one Kirchhoff patch (points): ~160 bytes per point of working memory
 MAX_KIRCHHOFF_FFT = 1 << 21
@@ -421,19 +416,28 @@ def _block_slopes(hf: HeightField, core, sig_px: float, radius: int, min_weight:
     valid = np.isfinite(sub)
     inside = (cy0 == by0) and (cx0 == bx0) and (cy1 == y1 + r) and (cx1 == x1 + r)
     full = inside and bool(valid.all())
-    pl = fit_plane(sub, 1.0) if valid.sum() >= 3 else None  # pixel units: slopes per pixel
+    all_valid = bool(valid.all())
+    pl = fit_plane(sub, 1.0) if all_valid or valid.sum() >= 3 else None  # pixel units: slopes per pixel
     H = np.zeros((Ty + 2 * r, Tx + 2 * r), dtype)
     blk = H[cy0 - by0:cy1 - by0, cx0 - bx0:cx1 - bx0]
-    res = sub - pl.values(0, sub.shape[0], 0, sub.shape[1]) if pl is not None else sub
-    np.copyto(blk, np.where(valid, res, 0.0), casting="unsafe")
+    if pl is not None:  # residual = heights - plane, in float64, one temporary
+        res = np.subtract(sub, (pl.b * (np.arange(sub.shape[1]) - pl.x0))[None, :])
+        res -= (pl.a + pl.c * (np.arange(sub.shape[0]) - pl.y0))[:, None]
+    else:
+        res = np.array(sub)
+    if not all_valid:
+        res[~valid] = 0.0
+    np.copyto(blk, res, casting="unsafe")
     del res
     shape_pad = (sfft.next_fast_len(Ty + 2 * r, real=True), sfft.next_fast_len(Tx + 2 * r, real=True))
     K = _kernel_spectra(shape_pad, float(sig_px), r, np.dtype(dtype).name)
     sl = (slice(2 * r, 2 * r + Ty), slice(2 * r, 2 * r + Tx))  # window centred on block point p is at p + r
     workers = 1
 
-    def conv(F, k):
-        return sfft.irfft2(F * K[k], shape_pad, workers=workers)[sl].astype(np.float64)
+    def conv(F, k, scale=None):
+        """The moment ``k`` on the core points in float64 (times ``scale`` if given)."""
+        out = sfft.irfft2(F * K[k], shape_pad, workers=workers, overwrite_x=True)[sl]
+        return np.multiply(out, scale, dtype=np.float64) if scale is not None else out.astype(np.float64)
 
     FH = sfft.rfft2(H, shape_pad, workers=workers)
     del H
@@ -442,7 +446,7 @@ def _block_slopes(hf: HeightField, core, sig_px: float, radius: int, min_weight:
     core_valid = valid[y0 - cy0:y0 - cy0 + Ty, x0 - cx0:x0 - cx0 + Tx]
     if full:
         S0, Sxx = _full_window_moments(sig_px, r)
-        b, c = conv(FH, "x") / Sxx, conv(FH, "y") / Sxx
+        b, c = conv(FH, "x", 1.0 / Sxx), conv(FH, "y", 1.0 / Sxx)
         good = S0 > min_weight * full_w and S0 * Sxx * Sxx > 1e-6 * full_det
         ok = core_valid & good
     else:
@@ -478,8 +482,22 @@ def _block_slopes(hf: HeightField, core, sig_px: float, radius: int, min_weight:
     return b, c, ok
 
 
-def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype):
-    """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted)."""
+def _warm_allocator() -> None:
+    """Let the C allocator keep the tiles' temporaries (~1-2 MiB each) instead of mapping fresh pages for each.
+
+    glibc serves blocks above its mmap threshold (128 KiB at start) with fresh pages (faulted in and zeroed by
+    the kernel on first touch, unmapped on free); freeing one mapped block raises the threshold to that block's
+    size (up to 32 MiB).  Allocating and freeing one untouched 24 MiB block (no page is touched: it costs
+    nothing) does that up front; a long-running Blender session is usually in that state already.  Measured on
+    a 4096^2 scan, single thread: ~0.2-0.4 M page faults and 0.5-0.9 s of system time -> ~20 k and ~0.1 s.
+    Harmless with other allocators."""
+    np.empty(3 << 20)
+
+
+def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype,
+                    post=None):
+    """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted), or
+    ``post(core, dh/dx, dh/dy, ok)`` computed on the worker thread when ``post`` is given."""
     d = hf.pixel_um
     sig_px, radius = _check_sigma(sigma_um, d, hf.shape)
     if not (isinstance(min_weight, (int, float, np.integer, np.floating)) and 0.0 <= float(min_weight) < 1.0):
@@ -499,6 +517,8 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
         T = max(ny, nx)
     else:
         T = int(max(tile, 4 * radius))  # tiles at least as wide as the filter's window
+        T = sfft.next_fast_len(T + 2 * radius, real=True) - 2 * radius  # block (core + halo) = a fast FFT size
+    _warm_allocator()
 
     def job(core):
         b, c, ok = _block_slopes(hf, core, sig_px, radius, min_weight, dtype)
@@ -507,7 +527,11 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
             yy = np.arange(y0, y1)[:, None]
             xx = np.arange(x0, x1)[None, :]
             ok &= (yy >= nb) & (yy < ny - nb) & (xx >= nb) & (xx < nx - nb)
-        return core, b / d - pb, c / d - pc, ok
+        b /= d
+        b -= pb
+        c /= d
+        c -= pc
+        return (core, b, c, ok) if post is None else post(core, b, c, ok)
 
     workers = 1 if tile is None else _workers()
     yield from ordered_map(job, _tiles(ny, nx, T), workers)
@@ -553,19 +577,27 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
     so the normalised table is ``D(m)`` per steradian).  ``heights`` in µm (array or
     :class:`HeightField`), ``pixel_um`` and ``sigma_um`` (default 1 µm as in the paper) in µm.
     ``border_sigmas``: see :func:`filtered_slopes` (0 = every point, as in the paper).  The slopes are
-    computed and splatted tile by tile (``tile``, ``dtype``: see :func:`filtered_slopes`), so memory
-    stays bounded (a 4096^2 scan: ~0.5 GiB peak including its float64 copy).
+    computed and splatted tile by tile on two worker threads (``tile``, ``dtype``: see
+    :func:`filtered_slopes`), so memory stays bounded (a 4096^2 scan: ~0.6 GiB peak of the whole process
+    including its float64 copy, ~1.5 s of CPU time; bench/out/microgeometry_scale.md).
     """
     resolution = _check_resolution(resolution)
     hf, plane = _prepare(heights, pixel_um, detilt)
     R = resolution
     flat = np.zeros(R * R)
+    table = flat.reshape(R, R)
+
+    def splat(core, b, c, ok):  # on the worker thread: the tile's node sums (box corner + sums)
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < ok.size:
+            b, c = b[ok], c[ok]
+        return n_ok, list(_splat_cells(b, c, R))
+
     n = 0
-    batch = _SlopeBatch(flat, R)
-    for _, b, c, ok in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype):
-        n += int(ok.sum())
-        batch.add(b[ok], c[ok])
-    batch.flush()
+    for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat):
+        n += n_ok
+        for j, i, acc in cells:
+            table[j:j + acc.shape[0], i:i + acc.shape[1]] += acc
     if n == 0:
         raise ValueError("heights: no point has a well-conditioned local plane fit (too many missing points?)")
     return _normalised_table(flat, R, "filtered",
