@@ -322,8 +322,8 @@ def _cull_gate(g, scratched, layers, controls, base_socket):
 
 
 #: lay dense layer sets out as a race (``races``).  Trade-off (fig1c, 16 layers, this machine): 3.7x instead of 6.0x
-#: the baseline per sample, but 981 nodes instead of 382 (each race position holds its own lobe graph): the
-#: material builds in 10-12 s instead of 1.8 s and costs ~11 ms more scene sync per frame (bench scratch_cost t(1))
+#: the baseline per sample; the race positions share one lobe group (``race_lobe_group``), so the material holds
+#: one group node per position instead of a copy of the lobe graph (981 nodes before the shared group)
 RACE_LAYERS = True
 #: rows of the layer-order image of more than ``_EXACT_ORDERS`` layers (random orders; all N! up to it)
 RACE_ORDERS = 2048
@@ -368,10 +368,11 @@ def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, co
     the covering ones (the OSL path's pick: probability α_k / ᾱ), and Cycles' SVM skips the rest of the race
     as soon as one covers (NODE_JUMP_IF_ONE): with coverage c̄ per layer the expected number of Voronoi
     evaluations is (N + 1) E[1 / (|C| + 1)] instead of N (fig1c at 16 layers: 3.7).  Each position holds its
-    own copy of the frame and table lobe (only one runs per sample; EEVEE, which runs every node, keeps the
-    single picked-layer graph of ``build``)."""
+    instance of one shared group holding the frame and table lobe (``race_lobe_group``; only one runs per sample;
+    EEVEE, which runs every node, keeps the single picked-layer graph of ``build``)."""
     n = layers.n_layers
     img_order, img_rot, img_off = race_images(theta_k, xi_k)
+    group = race_lobe_group(lobe_data, name, cost_off)
     size = (float(layers.length), float(layers.width), 1.0)
     if "length" in controls or "width" in controls:
         size = g.combine(controls.get("length", size[0]), controls.get("width", size[1]), 1.0)
@@ -394,8 +395,7 @@ def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, co
         g._set(m.inputs["Scale"], size)
         y = g.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
         alpha = g.math("LESS_THAN", _feature_distance(g, y, cost_off), threshold)  # [F1]_d, eq. 7
-        lobe = _frame_lobe(g, lobe_data, name, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint,
-                           cost_off)
+        lobe = _race_lobe(g, group, rot.outputs["Alpha"], N, wo, t, h_slice, h_lobe, h_frac, tint)
         mix = g.node("ShaderNodeMixShader")
         g._set(mix.inputs["Fac"], alpha)
         if race is not None:
@@ -403,6 +403,66 @@ def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, co
         g.tree.links.new(lobe, mix.inputs[2])
         race = mix.outputs[0]
     return race
+
+
+#: name prefix of the layer race's shared lobe groups (``race_lobe_group``: "<prefix><content hash>")
+RACE_GROUP_PREFIX = "Scratch race lobe "
+#: the race lobe group's inputs (name, socket type) in the order ``_race_lobe`` links them
+_RACE_INPUTS = (("Theta", "NodeSocketFloat"), ("Normal", "NodeSocketVector"), ("Incoming", "NodeSocketVector"),
+                ("Tangent", "NodeSocketVector"), ("Slice", "NodeSocketFloat"), ("Lobe", "NodeSocketFloat"),
+                ("Aim", "NodeSocketFloat"), ("Tint", "NodeSocketColor"))
+
+
+def race_lobe_group(lobe_data: dict, name: str = "scratch", cost_off: int = 0) -> bpy.types.ShaderNodeTree:
+    """The node group of one race position's lobe (``_frame_lobe``: the frame of the layer at angle Theta and the
+    table lobe), shared by every position of every race with the same tables: named by a hash of its table
+    images and constants, so a material whose tables change (``scratch_addon.scratch_material.apply_tables``)
+    gets another group and never rewrites one other materials use.  Cycles flattens groups at sync: the
+    render is the one of a copy per position (the previous layout), and the Mix Shader jumps still skip the
+    positions after the first covering layer.  A 16-layer race holds 16 group nodes instead of 16 copies of
+    ~45 nodes (fig1c: 979 -> ~300 nodes per material), which is what 100 materials add to a .blend."""
+    import hashlib
+
+    imgs = table_images(name, lobe_data)
+    const = [sorted(img.name for img in imgs.values()), int(np.asarray(lobe_data["cdf"]).shape[0]),
+             int(np.asarray(lobe_data["cdf"]).shape[1]), float(lobe_data["alpha_x"]), float(lobe_data["alpha_y"]),
+             int(lobe_data.get("y_group", 1)), int(cost_off), _RACE_GROUP_VERSION]
+    if lobe_data.get("basis") is not None:
+        const += [int(lobe_data["basis"].shape[1]), int(lobe_data["coef"].shape[1])]
+    gname = RACE_GROUP_PREFIX + hashlib.sha1(repr(const).encode()).hexdigest()[:12]
+    grp = bpy.data.node_groups.get(gname)
+    if grp is not None and grp.bl_idname == "ShaderNodeTree" and len(grp.nodes) > 2:
+        return grp
+    if grp is None:
+        grp = bpy.data.node_groups.new(gname, "ShaderNodeTree")
+    else:
+        grp.nodes.clear()
+        grp.interface.clear()
+    for sname, stype in _RACE_INPUTS:
+        grp.interface.new_socket(sname, in_out="INPUT", socket_type=stype)
+    grp.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
+    g = _G(grp)
+    gi, go = g.node("NodeGroupInput"), g.node("NodeGroupOutput")
+    i = gi.outputs
+    lobe = _frame_lobe(g, lobe_data, name, i["Theta"], i["Normal"], i["Incoming"], i["Tangent"], i["Slice"],
+                       i["Lobe"], i["Aim"], i["Tint"], cost_off)
+    grp.links.new(lobe, go.inputs["BSDF"])
+    return grp
+
+
+#: bump when ``_frame_lobe`` / ``_table_lobe`` change: a saved file's race groups are then rebuilt, not reused
+_RACE_GROUP_VERSION = 1
+
+
+def _race_lobe(g, group, theta, N, wo, t, h_slice, h_lobe, h_frac, tint):
+    """One race position's lobe: an instance of ``race_lobe_group``; a constant ``tint`` sits on its input."""
+    node = g.node("ShaderNodeGroup")
+    node.node_tree = group
+    for (sname, _), value in zip(_RACE_INPUTS, (theta, N, wo, t, h_slice, h_lobe, h_frac, tint)):
+        if sname == "Tint" and not isinstance(value, bpy.types.NodeSocket):
+            value = (*(float(c) for c in tuple(value)[:3]), 1.0)
+        g._set(node.inputs[sname], value)
+    return node.outputs["BSDF"]
 
 
 def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, tint, cost_off):

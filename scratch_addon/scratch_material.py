@@ -567,6 +567,10 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
                 raise NeedsRebuild("the table images change height")
         for node in table_nodes:
             node.image = new[node.image.name.rsplit(" ", 1)[0]]
+        for node in tree.nodes:   # the layer race's shared lobe group: the one of the new tables (content-named)
+            if node.bl_idname == "ShaderNodeGroup" and node.node_tree is not None \
+                    and node.node_tree.name.startswith(scratch_svm.RACE_GROUP_PREFIX):
+                node.node_tree = scratch_svm.race_lobe_group(svm_lobes, material.name)
         S = int(np.asarray(svm_lobes["cdf"]).shape[0])   # adaptive φo nodes: rows of the A, C, Y images
         for node in rows:   # row = up / S + row_k: row_k ((k + 0.5) / S) comes from the N image
             node.inputs[1].default_value = 1.0 / S

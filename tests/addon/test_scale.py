@@ -81,3 +81,33 @@ def test_rgb_image_refuses_a_fourth_channel(addon):
     arr[0, 0, 3] = 0.5
     with pytest.raises(ValueError, match="fourth channel"):
         svm._data_image("Scratch test", arr, alpha=False)
+
+
+def _race_groups(addon, material) -> list:
+    prefix = _svm(addon).RACE_GROUP_PREFIX
+    return [n.node_tree.name for n in material.node_tree.nodes
+            if n.bl_idname == "ShaderNodeGroup" and n.node_tree is not None and n.node_tree.name.startswith(prefix)]
+
+
+def test_race_positions_share_one_lobe_group_and_a_table_edit_takes_its_own(addon, scene, render_dir):
+    """A layer race holds one instance of the shared lobe group per position (not a copy of the lobe graph per
+    position); two materials with the same tables share it; a table edit (``apply_tables``) gives the edited
+    material the group of its new tables (= a fresh build's, same SVM render) and leaves the other one's alone."""
+    import bpy
+
+    m1 = addon.api.make_scratched_material("fig1b_brushed")
+    m2 = addon.api.make_scratched_material("fig1b_brushed", tint=(1.0, 0.8, 0.6))
+    g1, g2 = _race_groups(addon, m1), _race_groups(addon, m2)
+    assert len(g1) == 4 and len(set(g1)) == 1 and g1 == g2          # 4 layers: 4 positions, one group
+    assert len(m1.node_tree.nodes) < 200                              # was 322 with a lobe copy per position
+    m1.scratch.metal = "gold"
+    assert addon.live.last_update()["kind"] in ("tables", "rebuild")
+    fresh = bpy.data.materials.new("fresh")
+    addon.api.make_scratched_material(material=fresh, **m1.scratch.to_params())
+    assert set(_race_groups(addon, m1)) == set(_race_groups(addon, fresh)) != set(g2)
+    assert _race_groups(addon, m2) == g2
+    _stage(addon, scene, m1)
+    edited, _ = addon.render.render_array(scene, str(render_dir), "edited")
+    scene.objects["Plane"].data.materials[0] = fresh
+    built, _ = addon.render.render_array(scene, str(render_dir), "fresh")
+    np.testing.assert_array_equal(edited, built)
