@@ -16,8 +16,8 @@ $(STAMP): requirements.txt
 
 venv: $(STAMP)
 
-# The README image: the demo preset on a floor under three small point lights (near / mid / far highlights);
-# 32 spp: the lit scratches streak radially around each highlight (about 18 s CPU on this machine).
+# The README image: the demo preset (Fig. 1d's layers) on a floor receding from the camera under one small point
+# light; 32 spp, OSL: lit scratches streak radially around the highlight, one by one near, a sheen far away.
 demo: $(STAMP)
 	$(VPY) scratch_addon/cli.py --preset demo --layout highlights --out docs/img/demo.png --samples 32 --res 640 480
 

@@ -14,7 +14,13 @@ Measured in one process, interleaved with the same grid under one plain Glossy m
                   later frames): what re-syncing costs when Cycles keeps its session
   svm sync s      the same as sync s with Shading System SVM (the node-group twins)
 
-    python -m bench scratch_scale [--counts 20 100] [--repeats 3]
+  build s         wall time to build the N scratch materials (the race's shared lobe group made this ~5x faster)
+  image MB        the packed table images' bytes in the saved .blend (zstd), from writing them alone
+
+    python -m bench scratch_scale [--counts 20 100] [--repeats 3] [--no-osl]
+
+``--no-osl`` skips the OSL columns (the OSL texts and bytecode do not depend on the SVM layout; a frame's OSL sync is
+dominated by Cycles' per-material JIT, issue 15 item 5: blocked on the OSL side).
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ import argparse
 import os
 import statistics
 import tempfile
+import time
 
 
 def _modules():
@@ -65,14 +72,18 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="python -m bench scratch_scale")
     ap.add_argument("--counts", type=int, nargs="+", default=[20, 100])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-osl", action="store_true", help="SVM columns only")
     a = ap.parse_args(argv)
+    paths = (False,) if a.no_osl else (True, False)
     bpy, api, materials, presets, render = _modules()
     tmp = tempfile.mkdtemp(prefix="bench_scratch_scale_")
     rows, loads = [], []
     for n in a.counts:
         sizes, t = {}, {}
         for scratch in (False, True):
+            t0 = time.perf_counter()
             scene = build_grid(n, scratch)
+            build_s = time.perf_counter() - t0
             path = os.path.join(tmp, f"grid{n}{scratch}.blend")
             bpy.ops.wm.save_as_mainfile(filepath=path, copy=True)
             sizes[scratch] = os.path.getsize(path) / 1e6
@@ -82,15 +93,22 @@ def main(argv: list[str]) -> int:
                 n_texts = len(texts)
                 trees = [m.node_tree for m in bpy.data.materials if m.node_tree] + list(bpy.data.node_groups)
                 n_bytecode = sum(1 for tr in trees for nd in tr.nodes if nd.bl_idname == "ShaderNodeScript" and nd.bytecode)
-            for osl in (True, False):
+                n_nodes = sum(len(tr.nodes) for tr in trees)
+                img_path = os.path.join(tmp, "images.blend")
+                bpy.data.libraries.write(img_path, set(bpy.data.images), compress=True)
+                image_mb = os.path.getsize(img_path) / 1e6
+                scratch_build = build_s
+            for osl in paths:
                 render.configure_cycles(scene, samples=1, res=(64, 64), osl=osl)
                 render.render_array(scene, tmp, "warm")   # first render: compile caches warm
                 t[(scratch, osl)] = []
             # interleave the two shading systems on this grid; the baseline grid alternates below
             for _ in range(a.repeats):
-                for osl in (True, False):
+                for osl in paths:
                     scene.cycles.shading_system = osl
                     t[(scratch, osl)].append(render.render_array(scene, tmp, "scale")[1])
+            if a.no_osl:
+                continue
             # Persistent Data (OSL): Cycles keeps its session between renders and re-syncs what changed
             scene.cycles.shading_system = True
             scene.render.use_persistent_data = True
@@ -98,16 +116,19 @@ def main(argv: list[str]) -> int:
             t[(scratch, "persistent")] = [render.render_array(scene, tmp, "scale")[1] for _ in range(a.repeats)]
             scene.render.use_persistent_data = False
         med = {k: statistics.median(v) for k, v in t.items()}
-        rows.append((n, n_texts, text_mb, n_bytecode, sizes[True] - sizes[False],
-                     med[(True, True)] - med[(False, True)],
-                     med[(True, "persistent")] - med[(False, "persistent")],
-                     med[(True, False)] - med[(False, False)], med[(False, True)]))
+        nan = float("nan")
+        rows.append((n, n_texts, text_mb, n_bytecode, n_nodes, scratch_build, image_mb, sizes[True] - sizes[False],
+                     med[(True, True)] - med[(False, True)] if not a.no_osl else nan,
+                     med[(True, "persistent")] - med[(False, "persistent")] if not a.no_osl else nan,
+                     med[(True, False)] - med[(False, False)], med[(False, False)]))
         loads.append(os.getloadavg()[0])
-    report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", "bytecode copies", ".blend MB added",
-                             "OSL sync s added", "OSL persistent s added", "SVM sync s added", "baseline t(1 spp) s"],
+    report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", "bytecode copies", "nodes",
+                             "build s", "image MB", ".blend MB added", "OSL sync s added", "OSL persistent s added",
+                             "SVM sync s added", "baseline SVM t(1 spp) s"],
            rows,
            f"Grid of N planes, the 10 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
-           f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation); load (1 min) "
-           f"after each grid size {', '.join(f'{x:.1f}' for x in loads)} on {os.cpu_count()} cores shared with other "
-           "jobs (wall times: the OSL JIT runs on every core, so the sync columns grow with the load).")
+           f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation), scratch and "
+           f"baseline grids in one process; load (1 min) after each grid size {', '.join(f'{x:.1f}' for x in loads)} "
+           f"on {os.cpu_count()} cores shared with other jobs (wall times: the sync columns grow with the load)."
+           + (" OSL columns not run (--no-osl)." if a.no_osl else ""))
     return 0

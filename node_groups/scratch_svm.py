@@ -322,8 +322,8 @@ def _cull_gate(g, scratched, layers, controls, base_socket):
 
 
 #: lay dense layer sets out as a race (``races``).  Trade-off (fig1c, 16 layers, this machine): 3.7x instead of 6.0x
-#: the baseline per sample, but 981 nodes instead of 382 (each race position holds its own lobe graph): the
-#: material builds in 10-12 s instead of 1.8 s and costs ~11 ms more scene sync per frame (bench scratch_cost t(1))
+#: the baseline per sample; the race positions are instances of one node group per material (``race_group``), so
+#: the material holds one group node per position instead of a copy of the position's graph (981 nodes before)
 RACE_LAYERS = True
 #: rows of the layer-order image of more than ``_EXACT_ORDERS`` layers (random orders; all N! up to it)
 RACE_ORDERS = 2048
@@ -356,8 +356,8 @@ def race_images(theta_k, xi_k) -> tuple:
     rot[0, :, 2] = rot[0, :, 3] = np.asarray(theta_k, np.float64)
     off = np.zeros((1, n, 4))
     off[0, :, :2] = np.asarray(xi_k, np.float64)[:, :2]
-    return (_data_image("Scratch layer orders", o), _data_image("Scratch layer rotations", rot),
-            _data_image("Scratch layer offsets", off))
+    return (_data_image("Scratch layer orders", o, alpha=False), _data_image("Scratch layer rotations", rot),
+            _data_image("Scratch layer offsets", off, alpha=False))
 
 
 def _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls, cost_off, twin, *, geo, N,
@@ -586,14 +586,18 @@ def _fitted_lobes(g, lobe_data, name, row, x, N, u, v, h_jit, jittered, tint):
     return scratch
 
 
-def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
-    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom).
+def _data_image(img_name: str, arr: np.ndarray, alpha: bool = True) -> bpy.types.Image:
+    """A packed Non-Color float RGBA image holding ``arr`` [rows, cols, 4] (row 0 at the bottom); ``alpha``
+    False: an RGB image (its packed EXR stores three channels, 3/4 of the bytes) for tables whose shader reads
+    only the Color output (``arr``'s fourth channel must then be 0: it is not stored).
 
     Named ``<img_name> <content hash>`` and shared: materials with the same tables use one image (one packed
     copy in the .blend), and rebuilding a material never rewrites an image another material uses."""
     import hashlib
 
     data = np.ascontiguousarray(arr, np.float32)
+    if not alpha and np.any(data[..., 3] != 0.0):
+        raise ValueError(f"{img_name}: an RGB table image cannot hold a fourth channel")
     rows, cols = arr.shape[:2]
     img_name = f"{img_name} {hashlib.sha1(data.tobytes() + repr(data.shape).encode()).hexdigest()[:12]}"
     img = bpy.data.images.get(img_name)
@@ -603,9 +607,12 @@ def _data_image(img_name: str, arr: np.ndarray) -> bpy.types.Image:
         bpy.data.images.remove(img)
         img = None
     if img is None:
-        img = bpy.data.images.new(img_name, width=cols, height=rows, alpha=True, float_buffer=True, is_data=True)
+        img = bpy.data.images.new(img_name, width=cols, height=rows, alpha=alpha, float_buffer=True, is_data=True)
     img.colorspace_settings.is_data = True
     img.alpha_mode = "CHANNEL_PACKED"
+    if not alpha:   # Blender's pixel buffer stays RGBA (alpha 1); only RGB is packed
+        data = data.copy()
+        data[..., 3] = 1.0
     img.pixels.foreach_set(data.reshape(-1))
     img.file_format = "OPEN_EXR"
     img.pack()
@@ -624,7 +631,7 @@ def table_images(name: str, lobe_data: dict) -> dict:
       and sign σ = +1 for odd bounces (mirror-like), -1 for even ones (retro-like): R = b + c - h,
       G = 2 h, B = -σ / 2, A = σ φ_s / 2 (the tilt is then (R + G ξ) π / 2M - π/4 + φo / 2 + B φo + A);
     - lossy only: ``Y`` [S, NT M / y_group] RGB = ``theta_factor``.
-    Images are shared by content (``_data_image``).
+    Images are shared by content (``_data_image``); N, A and Y are RGB images (the shader reads their Color only).
     """
     from ..precompute.scratch.lobe_table import alias_table
 
@@ -649,10 +656,10 @@ def table_images(name: str, lobe_data: dict) -> dict:
     c = np.zeros((S, M, 4))
     c[..., 0], c[..., 1] = np.arange(M) + ce - hw, 2.0 * hw
     c[..., 2], c[..., 3] = -0.5 * sigma, 0.5 * sigma * phi[:, None]
-    out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n), "A": _data_image(TABLE_IMAGE_PREFIX + "A", a),
-           "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
+    out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n, alpha=False),
+           "A": _data_image(TABLE_IMAGE_PREFIX + "A", a, alpha=False), "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
     if lobe_data.get("basis") is not None:
-        out["Y"] = _data_image(TABLE_IMAGE_PREFIX + "Y", theta_factor(lobe_data))
+        out["Y"] = _data_image(TABLE_IMAGE_PREFIX + "Y", theta_factor(lobe_data), alpha=False)
     return out
 
 

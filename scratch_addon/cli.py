@@ -52,8 +52,8 @@ def _parser(preset_names: list[str]) -> argparse.ArgumentParser:
     p.add_argument("--res", type=int, nargs=2, default=(480, 320), metavar=("W", "H"), help="resolution in pixels")
     p.add_argument("--seed", type=int, default=0, help="Cycles sampling seed")
     p.add_argument("--layout", default="torus", choices=["torus", "highlights"],
-                   help="scene: torus under a studio world, or highlights (a floor under three small point "
-                        "lights, near / mid / far: the README demo)")
+                   help="scene: torus under a studio world, or highlights (a floor receding from the camera "
+                        "under a small point light: the README demo)")
     p.add_argument("--osl", action="store_true", help="use the OSL shading backend")
     p.add_argument("--list-presets", action="store_true", help="print preset names and exit")
     return p

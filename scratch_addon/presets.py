@@ -58,14 +58,13 @@ _add(Preset("fig14a_shallow", "scratch", "Fig. 14a / Table 1: nearly flat profil
             dict(profile=("quartic", 0.05), fresnel="iron", layers=_layers(4, 7, 0.02, 7e-4, 0.5), base="mirror")))
 _add(Preset("fig14b_steep", "scratch", "Fig. 14b / Table 1: steep profile, scratched",
             dict(profile=("quartic", 0.6), fresnel="iron", layers=_layers(16, 360, 0.02, 1e-5, 0.2), base="mirror")))
-#: The README demo (``make demo``, layout "highlights"): Fig. 1d's sparse scratches of all orientations on iron, as 16
-#: denser layers (d = 0.3) of a quartic 0.15: around each small light's highlight, the scratches whose mirror
-#: direction meets the light streak radially (one streak per layer orientation), lit out to the profile's slopes.
-#: Measured (issue 15 item 7, 640x480, 16 spp): 32 layers at quartic 0.08 or 0.3 give a speckle of isolated glints
-#: at that sample count (each sample picks one layer: 1/32 of the samples can light a streak); 8 layers give a few
-#: broad fans; 16 layers read as streaks.
-_add(Preset("demo", "scratch", "README demo: 16 layers of all orientations, quartic 0.15, density 0.3 (iron)",
-            dict(profile=("quartic", 0.15), fresnel="iron", layers=_layers(16, 360, 0.3, 3e-4, 0.3), base="mirror")))
+#: The README demo (``make demo``, layout "highlights"): Fig. 1d / Table 1 as is (32 sparse layers of all
+#: orientations, quartic 0.3, iron) on a floor under one small point light (``render.highlights_scene``): lit
+#: scratches streak radially around the light's highlight, one by one near the camera, merging into a sheen far
+#: away (issue 15 item 7).  The earlier demo (16 denser layers, d = 0.3, quartic 0.15, three lights) gave broad
+#: noisy fans with no individual scratch anywhere: at 1 m per UV unit every floor pixel was in the far field.
+_add(Preset("demo", "scratch", "README demo: Fig. 1d's 32 sparse layers of all orientations, quartic 0.3 (iron)",
+            dict(profile=("quartic", 0.3), fresnel="iron", layers=_layers(32, 360, 0.3, 3e-4, 0.05), base="mirror")))
 
 
 def names() -> list[str]:

@@ -242,17 +242,23 @@ def add_torus(scene, material=None, major: float = 1.0, minor: float = 0.4, name
     return obj
 
 
-def highlights_scene(scene, material, camera_height: float = 1.2, highlights=((-0.45, 0.8), (0.35, 2.6), (0.0, 8.0)),
-                     light_height: float = 1.5, energy=(200.0, 1500.0, 12000.0), uv_size: float = 1.0,
-                     light_size: float = 0.15) -> None:
+def highlights_scene(scene, material, camera_height: float = 1.2, highlights=((0.0, 1.5),),
+                     light_height: float = 2.0, energy=(6000.0,), uv_size: float = 100.0,
+                     light_size: float = 0.15, world: float = 0.02) -> None:
     """The README demo's stage: ``material`` on a large floor plane receding from a low camera, one small
-    point light per highlight (near, mid, far on the floor, as (x, y) points), each placed on the mirror
-    direction of its point so the base reflects it there and the scratches streak around it; a dim world.
-    ``energy`` per light (W; the far ones brighter so that the highlights read alike), ``uv_size`` metres
-    per UV unit, ``light_size`` the lights' radius (m; a scratch lights up where its mirror direction meets
-    the light, so the light's size sets how often a path sample finds it: 0.03 m left a sparse speckle at 16 spp)."""
-    uniform_world(scene, strength=0.03)
-    add_plane(scene, size=40.0, material=material, uv_size=uv_size, location=(0.0, 15.0, 0.0))
+    point light per highlight (on the floor, as (x, y) points), each placed on the mirror direction of its
+    point so the base reflects it there and the scratches streak radially around it; a dim world.
+    ``energy`` per light (W), ``uv_size`` metres per UV unit, ``light_size`` the lights' radius (m), ``world``
+    the environment's strength.
+
+    Defaults (issue 15 item 7, measured at 640x480 / 32 spp with the 'demo' preset = Fig. 1d's layers): one
+    light whose highlight sits 2.5 m in front of the camera, so its streak fans run from the bottom of the
+    frame (near) to the horizon (far).  uv_size 100 makes Fig. 1d's scratches (l = 0.3, w = 3e-4, d = 0.05 in
+    UV units) 3 m long, 3 mm wide and 3 cm apart across: wider than a pixel's footprint near the camera, so
+    they show one by one there, while far away a pixel covers many (the OSL far field: a sheen).  At
+    uv_size 1 every pixel of the floor is in the far field and the image is a uniform speckled sheen."""
+    uniform_world(scene, strength=world)
+    add_plane(scene, size=60.0, material=material, uv_size=uv_size, location=(0.0, 28.0, 0.0))
     cam = (0.0, -1.0, camera_height)
     add_camera(scene, location=cam, target=(0.0, 3.0, 0.0), lens=30.0)
     for (x, y), e in zip(highlights, energy):
