@@ -60,6 +60,17 @@ def camera_shifts(k: int) -> np.ndarray:
     return np.stack([i / k, np.mod(i * 0.5 * (1 + 5 ** 0.5), 1.0)], 1)
 
 
+def frame_mean_se(imgs):
+    """Frame mean (3,) of renders ``imgs`` (seeds, pixels, 3) of one image with different seeds, and its
+    standard error (3,): the per-pixel variance across seeds (ddof 1; the image's fixed spatial pattern
+    cancels) averaged over the pixels, / (pixels x seeds).  NaN with one seed."""
+    imgs = np.asarray(imgs, np.float64)
+    mean = imgs.mean((0, 1))
+    if imgs.shape[0] < 2:
+        return mean, np.full(imgs.shape[-1], np.nan)
+    return mean, np.sqrt(imgs.var(0, ddof=1).mean(0) / (imgs.shape[0] * imgs.shape[1]))
+
+
 def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None,
                seed=7, seeds=None, noise=False, shifts=1):
     """Mean RGB per view of the explicit tiles (rendered once per seed) and of every baked material in
@@ -111,12 +122,9 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
                     img, s = render.render_array(scene, tmp, "explicit" if kind == "explicit" else "baked")
                     imgs[j] += img.reshape(-1, 3).astype(np.float64) / len(offs)
                     secs[kind] += s                                 # imgs: (seeds, pixels, 3)
-            out[kind].append(imgs.mean((0, 1)))
-            if len(seeds) > 1:
-                var_pix = imgs.var(0, ddof=1).mean(0)
-                se[kind].append(np.sqrt(var_pix / (imgs.shape[0] * imgs.shape[1])))
-            else:
-                se[kind].append(np.full(3, np.nan))
+            m, e = frame_mean_se(imgs)
+            out[kind].append(m)
+            se[kind].append(e)
     ex = np.array(out.pop("explicit"))
     res_ = (ex, {k: np.array(v) for k, v in out.items()}, secs)
     if noise:
