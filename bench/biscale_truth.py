@@ -227,7 +227,8 @@ def main(argv: list[str]) -> int:
     report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
            notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
-                 f"{args.seeds} seeds (render noise 1σ: standard error of the difference of the two frame means, "
+                 f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
+                 f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
                  "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "
                  "Monte Carlo noise (facet sampling, the indirect table's paths)), "
                  "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
