@@ -6,9 +6,10 @@ orthographic camera along several views, lit by a direction-coded environment (0
 area lamp (NEE on), ``max_bounces`` 0 (direct light: Wu's model) or 16 (full GI).  Baked: the closure
 table (Wu's single bounce), the same plus the inter-reflections inside the tile
 (``precompute.biscale.interreflect``; GI rows), optionally the fitted closures of both (``--fit``).
-Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit).
+Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit), next to its render
+noise (1σ, from two seeds per image: ``render_set(noise=True)``).
 
-    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--spp 64] [--figure]
+    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--spp 64] [--seeds 2] [--figure]
 """
 from __future__ import annotations
 
@@ -49,17 +50,51 @@ def render_pair(tile, materials, mat, views, n=300, spp=64, res=32, bounces=0, l
     return ex, bk["baked"], secs
 
 
+def camera_shifts(k: int) -> np.ndarray:
+    """``k`` offsets of the camera (fractions of the tile period, (k, 2)) stratified over the period cell:
+    a rank-1 lattice (i / k, frac(i φ)), φ the golden ratio.  The explicit frame mean over a footprint
+    that holds a non-integer number of periods depends on where the footprint starts (groove, 35° view,
+    0.4 m footprint = 12.2 periods: ±1.2 % over 8 offsets, measured); averaging over offsets uniform in
+    the cell makes it the tile average that the baked material stands for, whatever the footprint."""
+    i = np.arange(int(k))
+    return np.stack([i / k, np.mod(i * 0.5 * (1 + 5 ** 0.5), 1.0)], 1)
+
+
+def frame_mean_se(imgs):
+    """Frame mean (3,) of renders ``imgs`` (seeds, pixels, 3) of one image with different seeds, and its
+    standard error (3,): the per-pixel variance across seeds (ddof 1; the image's fixed spatial pattern
+    cancels) averaged over the pixels, / (pixels x seeds).  NaN with one seed."""
+    imgs = np.asarray(imgs, np.float64)
+    mean = imgs.mean((0, 1))
+    if imgs.shape[0] < 2:
+        return mean, np.full(imgs.shape[-1], np.nan)
+    return mean, np.sqrt(imgs.var(0, ddof=1).mean(0) / (imgs.shape[0] * imgs.shape[1]))
+
+
 def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None,
-               seed=7):
-    """Mean RGB per view of the explicit tiles (rendered once) and of every baked material in ``mats``
-    (name -> material) on a plane: returns (explicit (V, 3), {name: (V, 3)}, seconds per kind)."""
+               seed=7, seeds=None, noise=False, shifts=1):
+    """Mean RGB per view of the explicit tiles (rendered once per seed) and of every baked material in
+    ``mats`` (name -> material) on a plane: returns (explicit (V, 3), {name: (V, 3)}, seconds per kind),
+    and with ``noise=True`` a fourth item, the standard error of each mean ({"explicit" | name: (V, 3)}).
+
+    Noise: every kind is rendered with each seed of ``seeds`` (default (seed, seed + 1)); the per-pixel
+    Monte Carlo variance is the across-seed sample variance (ddof 1) averaged over the pixels (the
+    pixels' fixed spatial pattern cancels: only the seeds differ), so the standard error of the
+    frame mean (pixels independent) is sqrt(var_pix / (pixels x seeds)).
+
+    ``shifts`` > 1: each image is the pixel mean of renders with the camera moved by ``camera_shifts``
+    (x the tile's world period ``4 m / n``) at ``spp // shifts`` samples each (same total samples), so the
+    explicit mean is the tile average, not one footprint's phase; the seeds see the same offsets, so the
+    noise estimate stays the Monte Carlo noise only."""
     import bpy
 
     from scratch_materials.scratch_addon import biscale_truth, render
 
+    seeds = tuple(seeds) if seeds is not None else ((seed, seed + 1) if noise else (seed,))
     tmp = tmp or tempfile.mkdtemp()
     scene = bpy.context.scene
     out = {k: [] for k in ["explicit", *mats]}
+    se = {k: [] for k in out}
     secs = {k: 0.0 for k in out}
     for kind in out:
         for o in list(scene.objects):
@@ -72,17 +107,42 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
         else:
             render.add_plane(scene, size=4.0, material=mats[kind])
         for wo in views:
-            for c in [o for o in scene.objects if o.type == "CAMERA"]:
-                bpy.data.objects.remove(c)
             up = (0, 1, 0) if abs(wo[2]) > 0.999 else None
-            loc = tuple(5 * wo + (np.array([0, -1e-3, 0]) if up else 0))
-            render.add_camera(scene, location=loc, target=(0, 0, 0), ortho_scale=0.4)
-            render.configure_cycles(scene, samples=spp, res=(res, res), seed=seed, osl=True, max_bounces=bounces)
-            img, s = render.render_array(scene, tmp, "explicit" if kind == "explicit" else "baked")
-            out[kind].append(img.reshape(-1, 3).mean(0))
-            secs[kind] += s
+            imgs = np.zeros((len(seeds), res * res, 3))
+            offs = camera_shifts(shifts) * (4.0 / n) if kind == "explicit" else np.zeros((1, 2))
+            for off in offs:
+                for c in [o for o in scene.objects if o.type == "CAMERA"]:
+                    bpy.data.objects.remove(c)
+                tgt = np.array([off[0], off[1], 0.0])
+                loc = tuple(tgt + 5 * wo + (np.array([0, -1e-3, 0]) if up else 0))
+                render.add_camera(scene, location=loc, target=tuple(tgt), ortho_scale=0.4)
+                for j, sd in enumerate(seeds):
+                    render.configure_cycles(scene, samples=max(1, spp // len(offs)), res=(res, res), seed=sd,
+                                            osl=True, max_bounces=bounces)
+                    img, s = render.render_array(scene, tmp, "explicit" if kind == "explicit" else "baked")
+                    imgs[j] += img.reshape(-1, 3).astype(np.float64) / len(offs)
+                    secs[kind] += s                                 # imgs: (seeds, pixels, 3)
+            m, e = frame_mean_se(imgs)
+            out[kind].append(m)
+            se[kind].append(e)
     ex = np.array(out.pop("explicit"))
-    return ex, {k: np.array(v) for k, v in out.items()}, secs
+    res_ = (ex, {k: np.array(v) for k, v in out.items()}, secs)
+    if noise:
+        return (*res_, {k: np.array(v) for k, v in se.items()})
+    return res_
+
+
+def rel_error(ex, bk, se_ex=None, se_bk=None):
+    """Per view: (max over RGB of |bk - ex| / mean(ex), the 1-sigma noise of that channel's difference
+    relative to mean(ex), sqrt(se_ex² + se_bk²) / mean(ex)).  Arrays (V, 3)."""
+    ex, bk = np.asarray(ex), np.asarray(bk)
+    d = np.abs(bk - ex)
+    c = d.argmax(1)
+    err = d.max(1) / ex.mean(1)
+    if se_ex is None:
+        return err, np.full(len(err), np.nan)
+    s = np.sqrt(np.asarray(se_ex) ** 2 + (0 if se_bk is None else np.asarray(se_bk)) ** 2)
+    return err, s[np.arange(len(c)), c] / ex.mean(1)
 
 
 def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False):
@@ -130,6 +190,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--fit", action="store_true", help="also the fitted closures (with and without inter-reflections)")
     ap.add_argument("--gi", action="store_true", help="also full global illumination (16 bounces)")
     ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--seeds", type=int, default=2, help="renders per image (noise estimate from the seeds, >= 2)")
+    ap.add_argument("--shifts", type=int, default=4, help="camera offsets over the tile period per explicit image")
     ap.add_argument("--tiles", default=",".join(TILES))
     ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
     args = ap.parse_args(argv)
@@ -151,18 +213,24 @@ def main(argv: list[str]) -> int:
         for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
             use = [k for k in variants if bounces or "inter-refl." not in k]
             mats_bl = {k: _material(f"{name} {k}", *variants[k]) for k in use}
-            ex, bk, secs = render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=args.spp,
-                                      bounces=bounces)
+            ex, bk, secs, se = render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=args.spp,
+                                          bounces=bounces, noise=True, seeds=range(7, 7 + args.seeds),
+                                          shifts=args.shifts)
             for k in use:
-                err = np.abs(bk[k] - ex).max(1) / ex.mean(1)
-                for v, e, a, b in zip(views, err, ex, bk[k]):
+                err, sig = rel_error(ex, bk[k], se["explicit"], se[k])
+                for v, e, sg, a, b in zip(views, err, sig, ex, bk[k]):
                     rows.append([name, k, "direct" if bounces == 0 else f"GI ({bounces})", f"{v[0]:.0f}/{v[1]:.0f}",
-                                 f"{100 * e:.1f} %", np.round(a, 4).tolist(), np.round(b, 4).tolist(), bake_s])
+                                 f"{100 * e:.1f} %", f"{100 * sg:.2f} %", np.round(a, 4).tolist(),
+                                 np.round(b, 4).tolist(), bake_s])
                     print(rows[-1], flush=True)
         print(name, "indirect estimate", info["estimate"], flush=True)
-    report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "explicit RGB", "baked RGB",
+    report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
-           notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp, "
+           notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
+                 f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
+                 f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
+                 "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "
+                 "Monte Carlo noise (facet sampling, the indirect table's paths)), "
                  "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
                  f"{GI_BOUNCES} for the explicit tiles (the baked plane has nothing to bounce off). 'table': Wu's "
                  "single-bounce effective BRDF (closure table, res 19); '+ inter-refl.': plus bounces >= 2 inside "

@@ -108,7 +108,10 @@ def _microfacet(alpha, dist, fresnel_part):
             lo = (-1 + np.sqrt(1 + a2 * (1 - co_ * co_) / (co_ * co_))) / 2
             G = 1.0 / (1.0 + li + lo)
         x = (1.0 - vh) ** 5
-        F = (1.0 - x) if fresnel_part == "f0" else x if fresnel_part == "one" else np.ones_like(x)
+        if isinstance(fresnel_part, float):       # full Schlick term F0 (1 - x) + x: one evaluation
+            F = fresnel_part * (1.0 - x) + x
+        else:
+            F = (1.0 - x) if fresnel_part == "f0" else x if fresnel_part == "one" else np.ones_like(x)
         return D * G * F / (4.0 * ci_ * co_)
     return f
 
@@ -185,7 +188,7 @@ def material_lobes(mat: dict) -> list[Lobe]:
             lobes.append(Lobe("lambert", _lambert, kd))
         if min(F0) == max(F0):  # grey Fresnel: one lobe with the full Schlick term
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F0={F0[0]!r}",
-                              _scaled(_microfacet(alpha, dist, "f0"), _microfacet(alpha, dist, "one"), F0[0]),
+                              _microfacet(alpha, dist, float(F0[0])),
                               (ks, ks, ks)))
         else:
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:f0part", _microfacet(alpha, dist, "f0"), tuple(ks * c for c in F0)))
@@ -211,12 +214,6 @@ def material_lobes(mat: dict) -> list[Lobe]:
     else:
         raise ValueError(f"materials: unknown model {model!r}; expected one of {MODELS}")
     return lobes
-
-
-def _scaled(f_f0, f_one, F0):
-    def f(ci, co, cio):
-        return F0 * f_f0(ci, co, cio) + f_one(ci, co, cio)
-    return f
 
 
 def eval_material(mat_or_lobes, n: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -107,7 +107,8 @@ def precompute_M(lobe: Lobe, dir_res: int = DEFAULTS["dir_res"], normal_res: int
         rows, K = _M_rows(lobe, dirs, normals)
         lr = random_projection_svd_streamed(rows, K, len(normals), l=l, power=power, n_power=n_power,
                                             seed=seed, chunk=max(64, 2_000_000 // len(normals)))
-        Mz = np.concatenate([rows(a, min(a + 4096, K))[:, pole_index(normal_res)] for a in range(0, K, 4096)])
+        pole, _ = _M_rows(lobe, dirs, normals[[pole_index(normal_res)]])   # the pole column alone
+        Mz = np.concatenate([pole(a, min(a + 65536, K))[:, 0] for a in range(0, K, 65536)])
         return {"mean": lr.mean.astype(np.float32), "U": lr.U.astype(np.float32), "V": lr.V.astype(np.float32),
                 "Mz": Mz.astype(np.float32), "power": np.array([lr.power], np.float32)}
 
