@@ -25,8 +25,10 @@ def _stage(addon, scene, material):
     addon.render.configure_cycles(scene, samples=4, res=(32, 32), osl=False)
 
 
-def _table_nodes(material):
-    return [n for n in material.node_tree.nodes if n.bl_idname == "ShaderNodeTexImage" and n.image is not None
+def _table_nodes(addon, material):
+    """The table and race image nodes of ``material``, inside its race group (``scratch_svm.race_group``) too."""
+    return [n for n in _svm(addon).tree_nodes(material.node_tree) if n.bl_idname == "ShaderNodeTexImage"
+            and n.image is not None
             and n.image.name.startswith(("Scratch table ", "Scratch layer "))]
 
 
@@ -48,13 +50,13 @@ def test_rgb_table_images_render_as_rgba_and_survive_a_reload(addon, scene, rend
     _stage(addon, scene, mat)
     ref, _ = addon.render.render_array(scene, str(render_dir), "rgb")
     assert ref.mean() > 0.01
-    nodes = _table_nodes(mat)
+    nodes = _table_nodes(addon, mat)
     rgb = {n.image.name: n.image for n in nodes if n.image.depth == 96}
     roles = {name.split(" ")[2] for name in rgb}
     assert {"N", "A", "Y", "orders", "offsets"} <= roles, roles
     before = {name: _pixels(img)[..., :3].copy() for name, img in rgb.items()}
     # RGBA copies (alpha 0): a shader reading an RGB image's alpha (1 in Blender's buffer) would render otherwise
-    old = {n.name: n.image for n in nodes}
+    old = {n.as_pointer(): n.image for n in nodes}
     for n in nodes:
         if n.image.name in rgb:
             px = _pixels(n.image).copy()
@@ -63,7 +65,7 @@ def test_rgb_table_images_render_as_rgba_and_survive_a_reload(addon, scene, rend
     rgba, _ = addon.render.render_array(scene, str(render_dir), "rgba")
     np.testing.assert_array_equal(rgba, ref)
     for n in nodes:
-        n.image = old[n.name]
+        n.image = old[n.as_pointer()]
     path = str(tmp_path / "scale.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     bpy.ops.wm.open_mainfile(filepath=path)
