@@ -118,9 +118,9 @@ def demo_scene(preset: str = "demo", layout: str = "torus", **overrides) -> bpy.
     """Reset the file and build a demo scene with the preset's material.
 
     ``layout`` "torus": a curved UV-mapped object under a studio environment plus a small area light;
-    "highlights" (the README image): a floor plane receding from a low camera under three small point
-    lights whose highlights sit near, mid-distance and far, so one image shows lit scratches streaking
-    around a highlight individually near and merging into a sheen far away."""
+    "highlights" (the README image, ``render.highlights_scene``): a floor plane receding from a low camera
+    under one small point light whose highlight sits in front of the camera, so one image shows lit
+    scratches streaking around it, one by one near and merging into a sheen far away."""
     p = presets.get(preset)  # validate before wiping the file
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}; got {layout!r}")
