@@ -401,7 +401,7 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     # phi_i bins a sub-bin spans: 1 for the exact method's sub-bins, up to the stride of the fast method's
     span = _span(edges, M)
     # the phi_i bins this part covers: its accumulator holds only those columns
-    tiny = 0.25 * float(np.min(np.diff(edges)))
+    tiny = 0.25 * min(float(np.min(np.diff(edges))), np.pi / M)
     i_lo = int(_bin_index(edges[0] + tiny, M))
     ncol = int(_bin_index(edges[-1] - tiny, M)) - i_lo + 1
     if recs["node"].size == 0:  # nothing leaves (e.g. a very deep groove: all light lost inside)
@@ -626,7 +626,7 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
         _finish(acc2, M, half)
     # lost flux per phi_i bin: the largest over its nodes (a sub-bin may span several bins: fast method)
     lost_bins = np.zeros(M)
-    tiny = 0.25 * float(np.min(np.diff(edges)))
+    tiny = 0.25 * min(float(np.min(np.diff(edges))), np.pi / M)
     b0, b1 = _bin_index(edges[:-1] + tiny, M), _bin_index(edges[1:] - tiny, M)
     lmax = np.maximum(lost_nodes[:-1], lost_nodes[1:])
     for k in range(int(np.max(b1 - b0, initial=0)) + 1):  # a loop over the stride
@@ -732,7 +732,7 @@ def _table_diff(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, part_nodes, max_table_error,
-                 info: dict, deadline: float = np.inf):
+                 info: dict):
     """The fast method: traced incident directions chosen by the table error they add.
 
     At stride r one sub-bin is traced per r phi_i bins (K = 1; the horizon bins as in the exact
@@ -742,19 +742,32 @@ def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, p
     table (on noisy profiles it exceeds the error against the exact method by 1.1-1.3x: bench
     ``scratch_tracer_scale``).  Strides 4, 2, 1 are tried until the estimate is at most ``max_table_error``;
     if stride 1 does not reach it, or the profile has at most ``FAST_MIN_SEGMENTS`` (512) segments,
-    the exact method's table is returned.  ``info`` receives the stride
-    used (0 = exact) and the estimate.
+    the exact method's table is returned.  ``info`` receives the stride used (0 = exact) and the estimate;
+    it holds ``plan_seconds`` (``estimate_cost`` of the first pass) and ``max_seconds``: a further pass
+    whose estimate would take the total beyond ``max_seconds`` raises ValueError before it starts.
     """
-    import time
-
     if profile.segments <= FAST_MIN_SEGMENTS:  # few segments (V-groove, analytic families): exact, and cheap
         info.update(stride=0, table_error_estimate=0.0)
         return _exact_tables(profile, M, default_supersample(M), fresnel, cos_scales, split, max_bounces, workers,
                              part_nodes)
-    for r in _fast_strides(M):
-        if time.monotonic() > deadline:
-            raise ValueError(f"max_seconds: the fast method did not reach max_table_error={max_table_error:g} "
-                             "in time; raise max_table_error or max_seconds")
+    # each further pass is estimated before it starts (its traced directions times the first pass's cost per
+    # direction, which estimate_cost gives): the estimated total stays within max_seconds
+    plan, max_seconds = float(info.get("plan_seconds", 0.0)), float(info.get("max_seconds", np.inf))
+    strides = _fast_strides(M)
+    n0 = _n_traced(profile, M, 1, strides[0])[1]
+    spent = 0.0
+
+    def check(n_nodes: int, factor: float = 1.0):
+        nonlocal spent
+        need = plan * n_nodes / n0 * factor
+        if spent + need > max_seconds:
+            raise ValueError(f"max_seconds: the fast method's estimate did not reach max_table_error="
+                             f"{max_table_error:g}; its next pass needs ~{need:.3g} s more (estimated) than "
+                             f"max_seconds={max_seconds:g} allows; raise max_table_error or max_seconds")
+        spent += need
+
+    for r in strides:
+        check(_n_traced(profile, M, 1, r)[1])
         acc, lost, acc2 = _exact_tables(profile, M, 1, fresnel, cos_scales, split, max_bounces, workers,
                                         part_nodes, stride=r, coarse=True)
         est = _table_diff(acc2, acc[:1])
@@ -762,20 +775,21 @@ def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, p
         if est <= max_table_error:
             info.update(stride=int(r), table_error_estimate=est)
             return acc, lost
+    K = default_supersample(M)
+    check(_n_traced(profile, M, K)[1], 1.0 / budget.FAST_RECORD_FACTOR)
     info.update(stride=0, table_error_estimate=0.0)
-    return _exact_tables(profile, M, default_supersample(M), fresnel, cos_scales, split, max_bounces, workers,
-                         part_nodes)
+    return _exact_tables(profile, M, K, fresnel, cos_scales, split, max_bounces, workers, part_nodes)
 
 
 def _slices(profile, M, fresnel, theta_o, method, supersample, rays_per_slice, seed, split, max_bounces, workers=1,
-            part_nodes=_CHUNK_NODES, max_table_error=None, info=None, deadline=np.inf):
+            part_nodes=_CHUNK_NODES, max_table_error=None, info=None):
     """rho_s at theta_o values (+ the lossless rho_m): returns (rho_m [M,M], rho_t [T,M,M,C] | None, bounces, lost)."""
     theta_o = np.atleast_1d(np.asarray(theta_o, np.float64))
     cos_scales = np.cos(theta_o) if fresnel is not None else np.zeros(0)
     if method in ("exact", "fast"):
         if method == "fast":
             acc, lost = _fast_tables(profile, M, fresnel, tuple(cos_scales), split, max_bounces, workers, part_nodes,
-                                     max_table_error, {} if info is None else info, deadline)
+                                     max_table_error, {} if info is None else info)
         else:
             acc, lost = _exact_tables(profile, M, supersample, fresnel, tuple(cos_scales), split, max_bounces,
                                       workers, part_nodes)
@@ -810,14 +824,6 @@ def _simplified(profile: Profile, M: int, max_exit_error) -> Profile:
 
 def _check_table_error(max_table_error) -> float:
     return check_range("max_table_error", max_table_error, 1e-4, 1.0)
-
-
-def _deadline(max_seconds: float) -> float:
-    """``time.monotonic()`` past which a refinement pass of the fast method is not started (2x the limit:
-    the estimate is a reference-machine figure)."""
-    import time
-
-    return time.monotonic() + 2.0 * max_seconds if np.isfinite(max_seconds) else np.inf
 
 
 def _check_max_seconds(max_seconds) -> float:
@@ -942,7 +948,8 @@ def estimate_cost(profile: Profile, resolution: int = 256, fresnel=None, *, meth
     The exact method traces a few probe directions of the simplified profile to count its exit beams
     (~1 % of the work); ``simulate`` makes the same estimate and refuses inputs beyond
     ``budget.MEMORY_BUDGET`` or ``max_seconds`` before it starts.  The fast method: the estimate of its
-    first (coarsest) pass; a finer pass runs only when the error estimate asks for it (``simulate``).
+    first (coarsest) pass; a finer pass (or the exact fallback) runs only when the table-error estimate asks
+    for it, and only if its own estimate fits in what is left of ``max_seconds`` (else ValueError).
     """
     _check_args(profile, resolution, fresnel, method, supersample, rays_per_slice, max_bounces)
     _check_table_error(max_table_error)
@@ -982,7 +989,7 @@ def simulate_theta(profile: Profile, theta_o, resolution: int = 256, fresnel=Non
     _check_cost(cost, max_seconds, M, method)
     rho_m, rho_t, _, _ = _slices(prof, M, fresnel, np.abs(th), method, supersample, rays_per_slice,
                                  seed, False, max_bounces, nw, cost.part_nodes or _CHUNK_NODES,
-                                 max_table_error, None, _deadline(max_seconds))
+                                 max_table_error, {"plan_seconds": cost.seconds, "max_seconds": max_seconds})
     if rho_t is None:
         return np.broadcast_to(rho_m[None, :, :, None], (th.size,) + rho_m.shape + (1,)).copy()
     return rho_t
@@ -1030,11 +1037,10 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
         cost = _estimate(prof, M, fresnel, method, supersample, bool(split_bounces), int(rays_per_slice),
                          int(max_bounces), nw, len(thetas), max_seconds)
         _check_cost(cost, max_seconds, M, method)
-        info = {}
+        info = {"plan_seconds": cost.seconds, "max_seconds": max_seconds}
         rho_m, rho_t, bounces, lost = _slices(prof, M, fresnel, thetas, method, supersample,
                                               rays_per_slice, seed, split_bounces, max_bounces, nw,
-                                              cost.part_nodes or _CHUNK_NODES, max_table_error, info,
-                                              _deadline(max_seconds))
+                                              cost.part_nodes or _CHUNK_NODES, max_table_error, info)
         if rho_t is None:
             rho0 = rho_m.astype(np.float32)
             gamma = np.ones(rho_m.shape, np.float32)

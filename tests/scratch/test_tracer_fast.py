@@ -111,3 +111,23 @@ def test_fast_estimate_is_cheaper_and_bounded():
 def test_bad_max_table_error(bad):
     with pytest.raises(ValueError, match="max_table_error"):
         brdf.simulate(profiles.v_groove(45.0), 8, method="fast", max_table_error=bad)
+
+
+def test_fast_tables_do_not_depend_on_the_parts():
+    """Parts of a few traced directions (a large profile's memory budget) give the same fast tables as two
+    parts: every part's accumulator covers exactly its own phi_i columns, also when its sub-bins are wide."""
+    prof = brdf._simplified(_noisy(5), M, "auto")
+    a, la, a2 = brdf._exact_tables(prof, M, 1, None, (), False, 64, 1, part_nodes=4, stride=4, coarse=True)
+    b, lb, b2 = brdf._exact_tables(prof, M, 1, None, (), False, 64, 1, part_nodes=64, stride=4, coarse=True)
+    np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(a2, b2, rtol=1e-9, atol=1e-12)
+    assert la == lb
+
+
+def test_a_refinement_beyond_max_seconds_is_refused():
+    """A tolerance no stride reaches needs further passes: one whose estimate exceeds what is left of
+    max_seconds raises ValueError (before it starts) instead of running past the limit."""
+    prof = _noisy(1)
+    first = brdf.estimate_cost(prof, M, None, method="fast").seconds
+    with pytest.raises(ValueError, match="max_seconds"):
+        brdf.simulate(prof, M, None, method="fast", max_table_error=1e-4, max_seconds=1.5 * first)
