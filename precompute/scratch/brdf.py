@@ -122,6 +122,10 @@ SIMPLIFY_BINS = 0.25
 #: ``simulate(method="fast")``: default bound of the estimated relative L1 table error the fewer traced
 #: incident directions may add (``_fast_tables``)
 FAST_TABLE_ERROR = 0.05
+#: the fast method's error estimate shrinks ~1.4x per halved stride (measured-4096, M = 256: 8.8 / 4.7 / 3.4 %
+#: at strides 8 / 4 / 2); it goes exact when the last stride would still miss max_table_error by 1.5x
+_FAST_GAIN = 1.4
+_FAST_GIVE_UP = 1.5
 #: the fast method traces profiles of at most this many segments exactly (V-grooves, the analytic families'
 #: 256 segments: cheap, and exact)
 FAST_MIN_SEGMENTS = 512
@@ -719,8 +723,12 @@ def _check_args(profile, resolution, fresnel, method, supersample, rays_per_slic
 
 
 def _fast_strides(M: int) -> list[int]:
-    """Strides the fast method tries, coarsest first: 4, 2, 1 (fewer at small M: a sub-bin spans at most M / 16 bins)."""
-    return [r for r in (4, 2, 1) if r == 1 or 16 * r <= M]
+    """Strides the fast method tries, coarsest first: 4 and 2 (a sub-bin spans at most M / 16 bins), and 1 where
+    its traced directions cost less than half the exact method's (M <= 128: the exact method's K is >= 6)."""
+    rs = [r for r in (4, 2) if 16 * r <= M]
+    if _sub_edges(M, 1).size * budget.FAST_RECORD_FACTOR < 0.5 * _sub_edges(M, default_supersample(M)).size:
+        rs.append(1)
+    return rs
 
 
 def _table_diff(a: np.ndarray, b: np.ndarray) -> float:
@@ -740,8 +748,9 @@ def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, p
     and phi_o bin edge).  The same traces at every other node give the stride-2r table; their relative
     L1 difference of rho_m (the Fresnel components' errors measure the same: bench, tests) estimates the error of the stride-r
     table (on noisy profiles it exceeds the error against the exact method by 1.1-1.3x: bench
-    ``scratch_tracer_scale``).  Strides 4, 2, 1 are tried until the estimate is at most ``max_table_error``;
-    if stride 1 does not reach it, or the profile has at most ``FAST_MIN_SEGMENTS`` (512) segments,
+    ``scratch_tracer_scale``).  Strides 4, 2 (and 1 where it is much cheaper than the exact method:
+    ``_fast_strides``) are tried until the estimate is at most ``max_table_error``; if none reaches it
+    (or the last one would miss it by more than ``_FAST_GIVE_UP`` = 1.5x), or the profile has at most ``FAST_MIN_SEGMENTS`` (512) segments,
     the exact method's table is returned.  ``info`` receives the stride used (0 = exact) and the estimate;
     it holds ``plan_seconds`` (``estimate_cost`` of the first pass) and ``max_seconds``: a further pass
     whose estimate would take the total beyond ``max_seconds`` raises ValueError before it starts.
@@ -754,7 +763,7 @@ def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, p
     # direction, which estimate_cost gives): the estimated total stays within max_seconds
     plan, max_seconds = float(info.get("plan_seconds", 0.0)), float(info.get("max_seconds", np.inf))
     strides = _fast_strides(M)
-    n0 = _n_traced(profile, M, 1, strides[0])[1]
+    n0 = _n_traced(profile, M, 1, strides[0])[1] if strides else 1
     spent = 0.0
 
     def check(n_nodes: int, factor: float = 1.0):
@@ -775,6 +784,9 @@ def _fast_tables(profile, M, fresnel, cos_scales, split, max_bounces, workers, p
         if est <= max_table_error:
             info.update(stride=int(r), table_error_estimate=est)
             return acc, lost
+        left = len(strides) - 1 - strides.index(r)  # halvings still to try, each ~_FAST_GAIN smaller
+        if est > _FAST_GIVE_UP * max_table_error * _FAST_GAIN ** left:  # out of reach: go exact
+            break
     K = default_supersample(M)
     check(_n_traced(profile, M, K)[1], 1.0 / budget.FAST_RECORD_FACTOR)
     info.update(stride=0, table_error_estimate=0.0)
@@ -857,7 +869,7 @@ def _estimate(profile: Profile, M: int, fresnel, method: str, K: int, split: boo
         chunk = min(rays, _mc_chunk_rays(P, nW))
         peak = out + chunk * (budget.BYTES_PER_RAY + 8 * nW) + min(chunk, 2_000_000 // max(1, 2 * P)) * 2 * P * 48
         return budget.Cost(seconds, int(peak), P, M, rays, out, 0)
-    fast = method == "fast" and profile.segments > FAST_MIN_SEGMENTS
+    fast = method == "fast" and profile.segments > FAST_MIN_SEGMENTS and bool(_fast_strides(M))
     stride = _fast_strides(M)[0] if fast else 1
     if fast:
         K = 1
@@ -1016,8 +1028,8 @@ def simulate(profile: Profile, resolution: int = 256, fresnel=None, *, method: s
     (default 600 s; ``inf`` = no limit).  Memory then stays under the budget: the work streams in parts.
 
     ``method="fast"`` (opt-in; ``supersample`` is ignored): fewer traced incident directions, chosen by
-    the table error they add (``_fast_tables``): one traced sub-bin per 4, 2 or 1 phi_i bins, the
-    coarsest whose estimated relative L1 error (of rho_m, against
+    the table error they add (``_fast_tables``): one traced sub-bin per 4 or 2 phi_i bins (also 1 at
+    M <= 128, where the exact method's K is large), the coarsest whose estimated relative L1 error (of rho_m, against
     the same traces at half the directions) is at most ``max_table_error`` (default ``FAST_TABLE_ERROR``
     = 0.05), else the exact table.  ``meta["fast"]``: the stride used (0 = exact) and the estimate.
     Measured (``bench/out/scratch_tracer_scale_256*.md``): ~4x faster than "exact" on a noisy
