@@ -131,3 +131,22 @@ def test_a_refinement_beyond_max_seconds_is_refused():
     first = brdf.estimate_cost(prof, M, None, method="fast").seconds
     with pytest.raises(ValueError, match="max_seconds"):
         brdf.simulate(prof, M, None, method="fast", max_table_error=1e-4, max_seconds=1.5 * first)
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=12, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**32 - 1), amp=st.floats(0.0, 1e-3), corr=st.integers(1, 32),
+       M=st.integers(2, 24), tol=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(0.05)))
+def test_fast_fuzz_finite_or_named_error(seed, amp, corr, M, tol):
+    """Any noisy profile, resolution and max_table_error: finite tables that keep the furnace bound, or a
+    ValueError naming max_table_error."""
+    prof = _noisy(seed, amp=amp, corr=corr, n=600)
+    try:
+        b = brdf.simulate(prof, M, None, method="fast", max_table_error=tol, max_seconds=60.0)
+    except ValueError as e:
+        assert "max_table_error" in str(e)
+        return
+    assert np.all(np.isfinite(b.rho_m)) and np.all(b.rho_m >= 0)
+    assert np.all(b.albedo() <= 1.0 + 0.02)
