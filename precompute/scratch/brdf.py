@@ -875,7 +875,7 @@ def _estimate(profile: Profile, M: int, fresnel, method: str, K: int, split: boo
         K = 1
         out *= 2  # the coarse accumulator of the error estimate
     _, n = _n_traced(profile, M, K, stride)
-    per_rec = budget.record_bytes(nW)
+    per_rec = budget.record_bytes(nW) * (1.0 + budget.FAST_BYTES_PER_STRIDE * (stride - 1))
     # coarse: _COARSE_RECORDS exit beams per segment per direction (an upper value of the measured 1.5-5);
     # probe only when that is within reach and the profile is small enough for the probe to be cheap
     # (probing a 100,000-segment profile alone takes minutes: refuse such inputs before any tracing)
