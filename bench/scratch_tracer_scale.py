@@ -122,6 +122,29 @@ def _fast_errors(a, b) -> dict:
     return out
 
 
+def _fast_figure(tables: dict, name: str, M: int, stride) -> None:
+    """rho_m of the exact and the fast table and their difference (bench/out/scratch_tracer_fast_<M>.png)."""
+    import numpy as np
+
+    plt = pyplot()
+    ex, fa = tables["exact"][0].astype(np.float64), tables["fast"][0].astype(np.float64)
+    fig, axs = plt.subplots(1, 3, figsize=(10, 3.4))
+    vmax = np.percentile(ex, 99.5)
+    ext = [-90, 90, -90, 90]
+    for ax, t, title in ((axs[0], ex, "exact"), (axs[1], fa, f"fast (stride {stride})")):
+        im = ax.imshow(t, origin="lower", extent=ext, vmin=0, vmax=vmax, cmap="magma")
+        ax.set_title(f"{name} rho_m, {title}", fontsize=8)
+        ax.set_xlabel("phi_i (deg)", fontsize=7)
+        ax.set_ylabel("phi_o (deg)", fontsize=7)
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    im = axs[2].imshow(fa - ex, origin="lower", extent=ext, cmap="RdBu_r", vmin=-0.2 * vmax, vmax=0.2 * vmax)
+    axs[2].set_title(f"fast - exact (rel L1 {np.abs(fa - ex).sum() / np.abs(ex).sum():.3f})", fontsize=8)
+    axs[2].set_xlabel("phi_i (deg)", fontsize=7)
+    fig.colorbar(im, ax=axs[2], fraction=0.046)
+    fig.tight_layout()
+    fig.savefig(out_path(f"scratch_tracer_fast_{M}.png"), dpi=110)
+
+
 def _fast_main(a) -> int:
     import numpy as np
 
@@ -143,6 +166,8 @@ def _fast_main(a) -> int:
                 f = fa[-1]
                 err = _fast_errors(f["tables"], ex[-1]["tables"])
                 info = f["fast"] or {}
+                if name == "measured-4096":
+                    _fast_figure({"exact": ex[-1]["tables"], "fast": f["tables"]}, name, M, info.get("stride"))
                 rows.append([name, M, f["segments"], f"{med(ex, 'wall'):.2f}", f"{med(ex, 'cpu'):.2f}",
                              f"{ex[-1]['est']:.1f}", f"{med(fa, 'wall'):.2f}", f"{med(fa, 'cpu'):.2f}",
                              f"{f['est']:.1f}", f"{max(x['maxrss'] for x in fa) / 2**20:.0f}",
