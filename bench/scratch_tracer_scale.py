@@ -11,12 +11,21 @@ summation order only, if the tracers agree).  ``est s`` is ``brdf.estimate_cost`
 the reference of the simplification error (``rel L1 simpl``).
 
 Profiles: ``smooth-4096`` (a sin^2 groove, depth 0.3, 4,096 samples), ``measured-4096`` (the same plus
-instrument-like noise, 16-sample-correlated, rms 5e-5 widths: the noise slopes (~0.01 rad) exceed the
-tolerance, so simplification keeps it -- it does scatter light), ``quartic-100k`` (the issue's 100,000
+instrument-like noise, a 16-sample box filter of white noise, rms 5e-5 widths: its segment slopes are
+(nearly) independent, rms ~0.07 rad, ~6 bins at M = 256, far above the tolerance, so simplification keeps it
+-- it does scatter light: simplifying it to 1 / 2 / 4 bins adds 7 / 15 / 25 % rel. L1 to rho_m at M = 256), ``quartic-100k`` (the issue's 100,000
 segments).  Tolerance ``bins``: no first-bounce exit direction moves by more than ``bins * pi / M``
 (``profiles.simplify``; ``simulate``'s "auto" is 0.25 bins).
 
     python -m bench scratch_tracer_scale [--quick] [--res 256] [--bins 0.25 1] [--baseline-rev REV] [--reps 2]
+
+``--fast``: the fast method (``simulate(method="fast")``) against the exact one (its oracle), interleaved
+exact/fast/exact/fast, on ``smooth-4096``, ``measured-4096``, ``quartic-100k`` and ``vgroove`` (45 degrees, where
+the fast method is the exact one): time, the stride it chose and its error estimate, and the error it adds:
+relative L1 and relative max of rho_m and rho0 (channels summed), and the moments of each phi_i column
+(cosine-weighted mean and standard deviation of phi_o, largest difference over the columns, degrees).
+
+    python -m bench scratch_tracer_scale --fast [--res 256] [--reps 2] [--max-table-error 0.05]
 """
 from __future__ import annotations
 
@@ -37,9 +46,11 @@ sys.path.insert(0, {root!r})
 import numpy as np
 from scratch_materials.precompute.scratch import fresnel, profiles
 from scratch_materials.precompute.scratch import brdf
-name, M, tol = {name!r}, {M}, {tol!r}
+name, M, tol, method, mte = {name!r}, {M}, {tol!r}, {method!r}, {mte!r}
 rng = np.random.default_rng(7)
-if name.startswith("quartic"):
+if name == "vgroove":
+    prof = profiles.v_groove(45.0)
+elif name.startswith("quartic"):
     prof = profiles.quartic(0.3, segments=100000)
 else:
     n = int(name.split("-")[1])
@@ -49,21 +60,22 @@ else:
         h = h + np.convolve(rng.standard_normal(n + 15), np.ones(16) / 16, "valid") * 2e-4
     prof = profiles.tabulated(x, h)
 fr = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
-est = brdf.estimate_cost(prof, M, fr, max_exit_error=tol).seconds
+kw = dict(method=method, max_table_error=mte) if method == "fast" else {{}}
+est = brdf.estimate_cost(prof, M, fr, max_exit_error=tol, **kw).seconds
 t0, c0 = time.perf_counter(), time.process_time()
-b = brdf.simulate(prof, M, fr, max_exit_error=tol, max_seconds=float("inf"))
+b = brdf.simulate(prof, M, fr, max_exit_error=tol, max_seconds=float("inf"), **kw)
 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
 np.save({out!r}, np.stack([b.rho_m[..., 0], b.rho0.sum(-1)]))
 print(json.dumps(dict(wall=wall, cpu=cpu, est=est, maxrss=(int(next(l.split()[1] for l in open('/proc/self/status') if l.startswith('VmHWM:'))) * 1024 if sys.platform.startswith('linux') else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
-                      segments=int(b.meta["segments"]), source=int(prof.segments))))
+                      segments=int(b.meta["segments"]), source=int(prof.segments), fast=b.meta.get("fast"))))
 """
 
 
-def _case(root: str, name: str, M: int, tol, tmp: str, tag: str) -> dict:
+def _case(root: str, name: str, M: int, tol, tmp: str, tag: str, method: str = "exact", mte: float = 0.05) -> dict:
     import numpy as np
 
-    out = os.path.join(tmp, f"{tag}-{name}-{M}-{tol}.npy")
-    code = textwrap.dedent(_CHILD).format(root=str(root), name=name, M=M, tol=tol, out=out)
+    out = os.path.join(tmp, f"{tag}-{name}-{M}-{tol}-{method}.npy")
+    code = textwrap.dedent(_CHILD).format(root=str(root), name=name, M=M, tol=tol, out=out, method=method, mte=mte)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     if r.returncode:
         return {"error": r.stderr.strip().splitlines()[-1]}
@@ -79,6 +91,109 @@ def _rel_l1(a, b) -> tuple[float, float]:
     return (float(np.abs(A[0] - B[0]).sum() / np.abs(B[0]).sum()), float(np.abs(A[1] - B[1]).sum() / np.abs(B[1]).sum()))
 
 
+def _moments(t):
+    """Cosine-weighted mean and standard deviation of phi_o (degrees) of every phi_i column of ``t`` [M, M]."""
+    import numpy as np
+
+    M = t.shape[0]
+    e = -0.5 * np.pi + np.arange(M + 1) * (np.pi / M)
+    c, C = 0.5 * (e[1:] + e[:-1]), np.diff(np.sin(e))
+    w = t.astype(np.float64) * C[:, None]
+    tot = np.maximum(w.sum(0), 1e-300)
+    mean = (w * c[:, None]).sum(0) / tot
+    var = (w * (c[:, None] - mean) ** 2).sum(0) / tot
+    return np.degrees(mean), np.degrees(np.sqrt(np.maximum(var, 0.0))), w.sum(0)
+
+
+def _fast_errors(a, b) -> dict:
+    """Error of tables ``a`` against the reference ``b`` ([2, M, M]: rho_m, rho0 channels summed)."""
+    import numpy as np
+
+    out = {}
+    for k, key in enumerate(("m", "0")):
+        A, B = a[k].astype(np.float64), b[k].astype(np.float64)
+        out["l1" + key] = float(np.abs(A - B).sum() / np.abs(B).sum())
+        out["max" + key] = float(np.abs(A - B).max() / np.abs(B).max())
+    ma, sa, wa = _moments(a[0])
+    mb, sb, wb = _moments(b[0])
+    lit = wb > 1e-3 * wb.max()
+    out["dmean"] = float(np.max(np.abs(ma - mb)[lit], initial=0.0))
+    out["dstd"] = float(np.max(np.abs(sa - sb)[lit], initial=0.0))
+    return out
+
+
+def _fast_figure(tables: dict, name: str, M: int, stride) -> None:
+    """rho_m of the exact and the fast table and their difference (bench/out/scratch_tracer_fast_<M>.png)."""
+    import numpy as np
+
+    plt = pyplot()
+    ex, fa = tables["exact"][0].astype(np.float64), tables["fast"][0].astype(np.float64)
+    fig, axs = plt.subplots(1, 3, figsize=(10, 3.4))
+    vmax = np.percentile(ex, 99.5)
+    ext = [-90, 90, -90, 90]
+    for ax, t, title in ((axs[0], ex, "exact"), (axs[1], fa, f"fast (stride {stride})")):
+        im = ax.imshow(t, origin="lower", extent=ext, vmin=0, vmax=vmax, cmap="magma")
+        ax.set_title(f"{name} rho_m, {title}", fontsize=8)
+        ax.set_xlabel("phi_i (deg)", fontsize=7)
+        ax.set_ylabel("phi_o (deg)", fontsize=7)
+        fig.colorbar(im, ax=ax, fraction=0.046)
+    im = axs[2].imshow(fa - ex, origin="lower", extent=ext, cmap="RdBu_r", vmin=-0.2 * vmax, vmax=0.2 * vmax)
+    axs[2].set_title(f"fast - exact (rel L1 {np.abs(fa - ex).sum() / np.abs(ex).sum():.3f})", fontsize=8)
+    axs[2].set_xlabel("phi_i (deg)", fontsize=7)
+    fig.colorbar(im, ax=axs[2], fraction=0.046)
+    fig.tight_layout()
+    fig.savefig(out_path(f"scratch_tracer_fast_{M}.png"), dpi=110)
+
+
+def _fast_main(a) -> int:
+    import numpy as np
+
+    load0 = os.getloadavg()
+    rows = []
+    names = a.profiles if a.profiles_given else ["measured-4096", "smooth-4096", "quartic-100k", "vgroove"]
+    with tempfile.TemporaryDirectory() as tmp:
+        for M in a.res:
+            for name in names:
+                ex, fa = [], []
+                for _ in range(max(1, a.reps)):  # interleaved: both see the same machine load
+                    ex.append(_case(ROOT, name, M, "auto", tmp, "exact"))
+                    fa.append(_case(ROOT, name, M, "auto", tmp, "fast", "fast", a.max_table_error))
+                bad = [r for r in ex + fa if "error" in r]
+                if bad:
+                    rows.append([name, M] + [""] * 14 + [bad[0]["error"][:80]])
+                    continue
+                med = lambda rs, k: statistics.median(x[k] for x in rs)  # noqa: E731
+                f = fa[-1]
+                err = _fast_errors(f["tables"], ex[-1]["tables"])
+                info = f["fast"] or {}
+                if name == "measured-4096":
+                    _fast_figure({"exact": ex[-1]["tables"], "fast": f["tables"]}, name, M, info.get("stride"))
+                rows.append([name, M, f["segments"], f"{med(ex, 'wall'):.2f}", f"{med(ex, 'cpu'):.2f}",
+                             f"{ex[-1]['est']:.1f}", f"{med(fa, 'wall'):.2f}", f"{med(fa, 'cpu'):.2f}",
+                             f"{f['est']:.1f}", f"{max(x['maxrss'] for x in fa) / 2**20:.0f}",
+                             f"{med(ex, 'cpu') / med(fa, 'cpu'):.1f}", info.get("stride", ""),
+                             f"{info.get('table_error_estimate', float('nan')):.4f}",
+                             f"{err['l1m']:.4f} / {err['l10']:.4f}", f"{err['maxm']:.3f} / {err['max0']:.3f}",
+                             f"{err['dmean']:.3f} / {err['dstd']:.3f}", ""])
+                print(rows[-1], flush=True)
+    load1 = os.getloadavg()
+    notes = (f"Medians of {a.reps} run(s) per method, each a fresh subprocess (2 threads), exact and fast interleaved. "
+             f"Machine load average (1/5/15 min) {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at the start, "
+             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end (2 cores shared with other jobs: wall times "
+             "follow the load, CPU times much less). RGB conductor Fresnel (3 channels), simplification 'auto'. "
+             f"fast: simulate(method='fast', max_table_error={a.max_table_error:g}); 'stride' = phi_i bins per traced "
+             "sub-bin (0 = exact); 'estimate' = its a-posteriori error estimate (rel. L1 of rho_m against the same "
+             "traces at half the directions). Errors of the fast tables against "
+             "the exact ones: relative L1 and relative max (|diff| max / ref max) of rho_m / rho0 (channels summed); "
+             "moments = largest difference over the lit phi_i columns of the cosine-weighted mean / standard "
+             "deviation of phi_o (degrees). 'est s' = brdf.estimate_cost.")
+    report("scratch_tracer_fast" + (a.tag if a.tag is not None else "_" + "_".join(str(m) for m in a.res)),
+           ["profile", "M", "traced segments", "exact wall s", "exact CPU s", "exact est s", "fast wall s",
+            "fast CPU s", "fast est s", "fast peak MiB", "CPU speed-up", "stride", "estimate",
+            "rel L1 rho_m / rho0", "rel max rho_m / rho0", "moments dmean / dstd (deg)", "note"], rows, notes)
+    return 0
+
+
 def main(argv=None) -> int:
     import numpy as np
 
@@ -92,7 +207,12 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=2, help="A/B pairs per case (medians are reported)")
     ap.add_argument("--reference", action="store_true", help="also run unsimplified (simplification error)")
     ap.add_argument("--tag", default=None, help="suffix of the output names (default _<res>)")
+    ap.add_argument("--fast", action="store_true", help="the fast method against the exact one (time and error)")
+    ap.add_argument("--max-table-error", type=float, default=0.05)
     a = ap.parse_args(argv)
+    a.profiles_given = argv is not None and "--profiles" in argv or "--profiles" in sys.argv
+    if a.fast:
+        return _fast_main(a)
     if a.quick:
         a.res, a.profiles, a.bins = [32], ["smooth-4096"], [0.25, 1.0]
     tag = a.tag if a.tag is not None else "_" + "_".join(str(m) for m in a.res)
