@@ -32,8 +32,8 @@ Rows
   footprint α off   also switches the far-field shortcut off (α_k = c̄(d) without per-layer work where the
                     footprint spans many cells: the whole sphere here), so every layer runs the Voronoi loop: its
                     negative "stage cost" is what the far-field shortcut saves
-  (density 1e-4, the previous "culled" row, was not culled: c̄ is interpolated linearly in a table of step 0.025,
-  c̄(1e-4) = 8e-6 > ALPHA_CULL = 1e-6; culling starts below d = 1.25e-5)
+  (the shaders read c̄(d) as d² times a table of c̄ / d² since issue 15's session 4: culling holds below
+  d = sqrt(ALPHA_CULL / π) = 5.6e-4 as on the SVM path; the linear c̄ table before culled only below d = 1.25e-5)
   demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
 
     python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3] [--only osl --out scratch_cost_osl]
