@@ -15,6 +15,12 @@ Rows
   osl base only     the same base rendered with Shading System OSL (Cycles' OSL Metallic node: what a culled
                     scratch material can cost at best on the OSL path)
   osl aniso GGX     osl/aniso_ggx.osl: the OSL twin of the baseline (what OSL itself costs)
+  osl floor         the least a scratch shader can cost on the OSL path: an OSL script that picks, per sample,
+                    the base closure (Metallic, iron, an input like the scratch shader's Base) or one narrow GGX
+                    (tangent frame from a UV Tangent node), with fig1c's far-field scratched fraction
+  osl N layers (L)  with ``--src L=TEMPLATE``: the same material with its script's text replaced by the file
+                    TEMPLATE.format(n=N) (e.g. the shader of another commit, generated for fig1c with N layers):
+                    before/after rows of one interleaved run
   osl / svm N       the fig1c_scratched preset (quartic 0.4, iron, mirror base) with N layers; "osl" renders
                     the OSL shader (Shading System OSL), "svm" the same material's node-group twin (Shading
                     System SVM, the default scene, the GPU path)
@@ -32,8 +38,8 @@ Rows
   footprint α off   also switches the far-field shortcut off (α_k = c̄(d) without per-layer work where the
                     footprint spans many cells: the whole sphere here), so every layer runs the Voronoi loop: its
                     negative "stage cost" is what the far-field shortcut saves
-  (density 1e-4, the previous "culled" row, was not culled: c̄ is interpolated linearly in a table of step 0.025,
-  c̄(1e-4) = 8e-6 > ALPHA_CULL = 1e-6; culling starts below d = 1.25e-5)
+  (the shaders read c̄(d) as d² times a table of c̄ / d² since issue 15's session 4: culling holds below
+  d = sqrt(ALPHA_CULL / π) = 5.6e-4 as on the SVM path; the linear c̄ table before culled only below d = 1.25e-5)
   demo scene        the old bench's scene (torus under the studio world, ~30 % of the frame): labelled as such
 
     python -m bench scratch_cost [--quick] [--res 128 128] [--spp 129] [--repeats 3] [--only osl --out scratch_cost_osl]
@@ -53,6 +59,21 @@ STAGES = {"layer Voronoi": 1, "footprint α": 2, "slice/CDF search": 4, "closure
 #: cost_off bit 16: the SVM twin's layer race off (node_groups/scratch_svm.py) and, in the OSL shader, its
 #: early return of the base closure when every layer is culled off (osl/scratch_svbrdf.osl): one bit, two paths
 RACE_OFF = EARLY_OUT_OFF = 16
+
+
+#: the OSL floor row: base closure or one narrow GGX per sample (fig1c far field: 1 - (1 - c̄(0.3))^N scratched)
+FLOOR_OSL = """#include "stdcycles.h"
+shader scratch_cost_floor(closure color Base = 0, vector Tangent = 0, output closure color BSDF = 0)
+{
+    vector t = Tangent - dot(Tangent, N) * N;
+    t = (length(t) > 1e-8) ? normalize(t) : dPdu;
+    float h = hashnoise(P, dot(I, vector(93.989, 67.345, 24.113)) + 17.0);
+    if (h < 0.72)
+        BSDF = microfacet("ggx", N, t, 0.0001, 0.005, 0.0, 0);
+    else
+        BSDF = Base;
+}
+"""
 
 
 def _modules():
@@ -75,6 +96,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=129)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--only", default="", help="comma-separated substrings: keep only rows whose name has one")
+    ap.add_argument("--src", action="append", default=[], metavar="LABEL=TEMPLATE",
+                    help="extra rows 'osl N layers (LABEL)': the fig1c material with the OSL text of TEMPLATE.format(n=N)")
     ap.add_argument("--out", default="scratch_cost", help="table name under bench/out/ (e.g. scratch_cost_osl with "
                                                           "--only osl: the OSL rows alone)")
     a = ap.parse_args(argv)
@@ -92,6 +115,31 @@ def main(argv: list[str]) -> int:
             mat = materials.new_material(f"S{n_layers}.{cost_off}.{density}")
             return sm.build(mat, sm.validate(**dict(fig1c, layers=layers)), cost_off=cost_off)
         return make
+
+    def swapped(n_layers, path):
+        def make():
+            import bpy
+
+            mat = scratch(n_layers)()
+            node = sm.script_node(mat)
+            text = bpy.data.texts.new(f"swapped {Path(path).name}")
+            text.from_string(Path(path).read_text())
+            node.script = text
+            osl_compile.compile_script_node(node)
+            return mat
+        return make
+
+    def osl_floor():
+        mat = materials.new_material("osl floor")
+        tree = mat.node_tree
+        node = osl_compile.script_node_from_source(tree, "scratch_cost_floor.osl", FLOOR_OSL)
+        base = sm._base_node(tree, sm.validate(**fig1c))
+        tree.links.new(base.outputs[0], node.inputs["Base"])
+        tan = tree.nodes.new("ShaderNodeTangent")
+        tan.direction_type = "UV_MAP"
+        tree.links.new(tan.outputs["Tangent"], node.inputs["Tangent"])
+        tree.links.new(node.outputs["BSDF"], tree.nodes["Material Output"].inputs["Surface"])
+        return mat
 
     def baseline():
         return materials.make_brushed_material(roughness=0.2, anisotropy=0.8)
@@ -122,8 +170,12 @@ def main(argv: list[str]) -> int:
     setups = [("baseline: SVM aniso Glossy (MS GGX)", baseline, False, "frame"),
               ("base only (Metallic, iron)", base_only, False, "frame"),
               ("osl base only (Metallic, iron)", base_only, True, "frame"),
-              ("osl aniso GGX (osl/aniso_ggx.osl)", osl_aniso, True, "frame")]
+              ("osl aniso GGX (osl/aniso_ggx.osl)", osl_aniso, True, "frame"),
+              ("osl floor: base or one GGX, picked", osl_floor, True, "frame")]
     counts = (4,) if a.quick else (4, 16)
+    for spec in a.src:
+        label, _, template = spec.partition("=")
+        setups += [(f"osl {n} layers ({label})", swapped(n, template.format(n=n)), True, "frame") for n in counts]
     for path, osl in (("osl", True), ("svm", False)):
         setups += [(f"{path} {n} layers", scratch(n), osl, "frame") for n in counts]
         for stage, bit in STAGES.items():

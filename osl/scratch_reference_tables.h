@@ -9,8 +9,8 @@
     float TOTAL[2] = {0.7, 0.7};
     float EDGE_SIN[3] = {-1, 0, 1};
 #if LAYERS
-    float THETA_K[1] = {0};
+    float CS_K[2] = {1, 0};  // cos Θ_k, sin Θ_k
     float XI_K[2] = {0.1, -0.2};
-    float COV[3] = {0, 0.5, 1};
+    float COV[3] = {3.14159265, 0.888888889, 0.444444444};  // c̄ / d²: c̄ = {0, 0.5, 1}
     float COV_DMAX = 1.5;
 #endif

@@ -250,9 +250,16 @@ def generate(spec: ShaderSpec) -> str:
 
 
 def _layer_arrays(spec) -> str:
-    """THETA_K, XI_K, COV and COV_DMAX of a layered ``ShaderSpec`` / ``ReferenceSpec``."""
-    return (_const("THETA_K", spec.theta_k) + _const("XI_K", np.asarray(spec.xi_k).ravel())
-            + _const("COV", spec.coverage) + f"    float COV_DMAX = {_f32(spec.coverage_dmax):.9g};\n")
+    """CS_K (cos Θ_k, sin Θ_k per layer), XI_K, COV and COV_DMAX of a layered ``ShaderSpec`` / ``ReferenceSpec``.  COV holds c̄(d) / d² on the
+    uniform grid of [0, COV_DMAX] (π at d = 0): the shaders' ``mean_coverage`` is exact near 0
+    (``precompute.scratch.layers.coverage_lookup`` is its twin)."""
+    cov = np.asarray(spec.coverage, np.float64)
+    d = np.linspace(0.0, float(spec.coverage_dmax), len(cov))
+    ratio = np.concatenate([[np.pi], cov[1:] / d[1:] ** 2])
+    theta = np.asarray(spec.theta_k, np.float64)
+    cs = np.stack([np.cos(theta), np.sin(theta)], -1).ravel()   # the shaders read them per sample: no trig
+    return (_const("CS_K", cs) + _const("XI_K", np.asarray(spec.xi_k).ravel())
+            + _const("COV", ratio) + f"    float COV_DMAX = {_f32(spec.coverage_dmax):.9g};\n")
 
 
 # --- reference mode ------------------------------------------------------------------------------

@@ -1,12 +1,11 @@
 // scratch_svbrdf_layer.h -- statements of scratch_svbrdf.osl computing the closure `rho` of layer k:
 // ρ_k(φo, ·) for the φo slice s, picked stochastically between the two slices (table: nodes) around φo.
-// Included inside the shader body (once per layer loop); needs k, THETA_K, t, b, n, wo, h_slice,
+// Included inside the shader body (once per layer loop); needs k, CS_K, t, b, n, wo, h_slice,
 // h_lobe (and h_jit for JITTERED) and the lobe tables.
 
-        float ck = cos(THETA_K[k]), sk = sin(THETA_K[k]);
+        float ck = CS_K[2 * k], sk = CS_K[2 * k + 1];
         vector u = ck * t + sk * b;
         vector v = cross(n, u);
-        float theta_o = asin(clamp(dot(wo, u), -1.0, 1.0));
         float phi_o = atan2(dot(wo, v), dot(wo, n));
 #if LOBE_TABLE
         // the two phi_o nodes around phi_o (cell lookup), one picked with its linear weight
@@ -29,6 +28,7 @@
         closure color rho = table_lobes(TB_AP, TB_AI, TB_TOT, TB_CEN, TB_PHI, TB_PHI, yb, s, phi_o, h_lobe, u, v, n);
 #endif
 #else
+        float theta_o = asin(clamp(dot(wo, u), -1.0, 1.0));
         float x = 2.0 * abs(theta_o) / M_PI;
         // stochastic linear interpolation between the two nearest phi_o slices
         float xs = (phi_o + M_PI_2) / M_PI * MS - 0.5;

@@ -25,7 +25,8 @@ import numpy as np
 from ..validation import check_seed
 
 __all__ = ["LayerParams", "layer_transforms", "mean_coverage", "COVERAGE_D", "coverage_table", "PAPER_TABLE1",
-           "merged_layers", "voronoi_f1", "layer_indicator"]
+           "merged_layers", "voronoi_f1", "layer_indicator", "coverage_ratio", "coverage_lookup", "union_alpha",
+           "far_alpha", "footprint_alpha", "FAR_SPREAD", "ALPHA_CULL"]
 
 #: Density grid of the tabulated mean coverage (F1 of a 3x3-searched unit jittered grid is < 1.5).
 COVERAGE_D = np.linspace(0.0, 1.5, 61)
@@ -122,13 +123,160 @@ def mean_coverage(d, samples: int = 400_000, seed: int = 1) -> np.ndarray:
 
 
 def coverage_table() -> tuple[np.ndarray, np.ndarray]:
-    """(d grid, c̄(d)) on ``COVERAGE_D``: linear interpolation error < 0.003 (61 points on [0, 1.5])."""
+    """(d grid, c̄(d)) on ``COVERAGE_D``: linear interpolation error < 0.003 (61 points on [0, 1.5]).
+
+    Computed by quadrature, not Monte Carlo (``_exact_coverage``): the feature points of the 9 cells
+    around a point p are independent and uniform in their cells, so P(F1(p) > d) = Π_j (1 − A_j(p, d)) with
+    A_j the area of the disk (p, d) inside cell j, and c̄(d) = 1 − E_p[Π_j (1 − A_j)] (§5.3, eq. 7)."""
     return COVERAGE_D.copy(), _coverage().copy()
 
 
 @functools.lru_cache(maxsize=1)
 def _coverage() -> np.ndarray:
-    return mean_coverage(COVERAGE_D)  # 0.35 s of Monte Carlo, the same every time (fixed seed)
+    return _exact_coverage(COVERAGE_D)
+
+
+def _quadrant_area(x, y, r):
+    """Area of the disk of radius r at the origin inside [0, x] × [0, y], odd in x and in y (x, y signed)."""
+    sx, sy = np.sign(x), np.sign(y)
+    x, y = np.minimum(np.abs(x), r), np.minimum(np.abs(y), r)
+
+    def h(t):  # ∫_0^t sqrt(r² - s²) ds, t in [0, r]
+        return 0.5 * (t * np.sqrt(np.maximum(r * r - t * t, 0.0)) + r * r * np.arcsin(np.clip(t / np.maximum(r, 1e-300), 0, 1)))
+
+    t_star = np.minimum(x, np.sqrt(np.maximum(r * r - y * y, 0.0)))   # below t*, the chord reaches past y
+    return sx * sy * (y * t_star + h(x) - h(t_star))
+
+
+def _exact_coverage(d, n: int = 64) -> np.ndarray:
+    """c̄(d) = 1 − E_p[Π_j (1 − A_j(p, d))] over the 3x3 cells (midpoint rule, n² points of the cell, |error| < 2e-6 at n = 64 against n = 400; exact
+    where the disk lies inside one cell, so the error lives in a strip of width d along the cell edges)."""
+    d = np.atleast_1d(np.asarray(d, np.float64))
+    g = (np.arange(n) + 0.5) / n
+    px, py = (a.ravel() for a in np.meshgrid(g, g, indexing="xy"))
+    out = np.empty(d.shape)
+    for m, r in enumerate(d):
+        if r <= 0.0:
+            out[m] = 0.0
+            continue
+        keep = np.ones_like(px)
+        for j in (-1, 0, 1):
+            for i in (-1, 0, 1):
+                x0, x1, y0, y1 = i - px, i + 1 - px, j - py, j + 1 - py
+                a = (_quadrant_area(x1, y1, r) - _quadrant_area(x0, y1, r)
+                     - _quadrant_area(x1, y0, r) + _quadrant_area(x0, y0, r))
+                keep *= 1.0 - np.clip(a, 0.0, 1.0)
+        out[m] = 1.0 - keep.mean()
+    return out
+
+
+def coverage_ratio() -> tuple[np.ndarray, np.ndarray]:
+    """(d grid, g(d) = c̄(d) / d²) on ``COVERAGE_D``, g(0) = π: the table the shaders interpolate (``COV``).
+
+    c̄(d) = π d² (1 + O(d³)) near 0, so interpolating g instead of c̄ makes the lookup exact as d -> 0: the
+    layer culling c̄(d) < ALPHA_CULL then holds below d = sqrt(ALPHA_CULL / π) = 5.6e-4, as on the SVM path."""
+    d, c = coverage_table()
+    g = np.empty_like(c)
+    g[0] = math.pi
+    g[1:] = c[1:] / d[1:] ** 2
+    return d, g
+
+
+def coverage_lookup(d, ratio: np.ndarray | None = None, dmax: float = float(COVERAGE_D[-1])) -> np.ndarray:
+    """The shaders' c̄(d) (``mean_coverage`` in osl/scratch_layers.h): d² times g linearly interpolated on the
+    uniform grid of ``ratio`` (default ``coverage_ratio()``); d in [0, 1] (clamped like the shader)."""
+    g = coverage_ratio()[1] if ratio is None else np.asarray(ratio, np.float64)
+    d = np.clip(np.asarray(d, np.float64), 0.0, 1.0)
+    x = d / dmax * (len(g) - 1)
+    i0 = np.minimum(np.floor(x).astype(int), len(g) - 2)
+    return d * d * (g[i0] + (g[i0 + 1] - g[i0]) * (x - i0))
+
+
+#: α_k below it are 0 (§6.1; the value of ``osl.scratch_svbrdf.ALPHA_CULL``)
+ALPHA_CULL = 1e-6
+#: footprint spread (noise cells) from which a layer's α_k is its mean c̄(d) (osl/scratch_layer_alpha.h)
+FAR_SPREAD = 0.8
+
+
+def union_alpha(alpha) -> tuple[np.ndarray, np.ndarray]:
+    """Layer coverages α_k [..., N] -> (α'_k, Σ α'_k) with Σ α'_k = 1 − Π_k (1 − α_k) (eq. 4 for independent layers).
+
+    Eq. 4 takes min(Σ α_k, 1) as the scratched fraction: right where the layers' scratches do not overlap
+    (a sharp footprint: α_k binary), but N c̄ instead of 1 − (1 − c̄)^N once α_k -> c̄(d) in the far field,
+    a step where the footprint grows and a disagreement with the binary-α SVM twin.  Independent layers
+    cover 1 − Π (1 − α_k) of the footprint; α'_k keeps the layer-pick proportions α_k / Σ α_k.  Binary α_k
+    are unchanged in effect (one covering layer picked uniformly), and E[1 − Π (1 − α_k)] = 1 − (1 − c̄)^N
+    at every footprint size (each α_k has mean c̄ and the layers are independent)."""
+    a = np.asarray(alpha, np.float64)
+    s = a.sum(-1)
+    union = 1.0 - np.prod(1.0 - a, axis=-1)
+    scale = np.where(s > 0.0, union / np.where(s > 0.0, s, 1.0), 0.0)
+    return a * scale[..., None], union
+
+
+def far_alpha(cbar, n_layers: int) -> np.ndarray:
+    """α_k of every layer in the far field (footprint >> a noise cell): (1 − (1 − c̄)^N) / N (``union_alpha``
+    of N equal α_k = c̄(d); 0 where c̄ < ALPHA_CULL)."""
+    c = np.asarray(cbar, np.float64)
+    return np.where(c < ALPHA_CULL, 0.0, (1.0 - (1.0 - c) ** n_layers) / n_layers)
+
+
+def _disk_overlap(a, R, r):
+    """Twin of ``disk_overlap`` (osl/scratch_layers.h): lens area of circles (a, R) at distance r / (π R²)."""
+    a, R, r = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in (a, R, r)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c1 = np.clip((r * r + a * a - R * R) / (2 * r * a), -1, 1)
+        c2 = np.clip((r * r + R * R - a * a) / (2 * r * R), -1, 1)
+        k = (-r + a + R) * (r + a - R) * (r - a + R) * (r + a + R)
+        lens = a * a * np.arccos(c1) + R * R * np.arccos(c2) - 0.5 * np.sqrt(np.maximum(k, 0.0))
+        out = np.clip(lens / (math.pi * R * R), 0.0, 1.0)
+    out = np.where(r <= np.abs(a - R), np.where(a < R, a * a / (R * R), 1.0), out)
+    return np.where(r >= a + R, 0.0, out)
+
+
+def footprint_alpha(uv, r_uv: float, params: LayerParams) -> tuple[np.ndarray, np.ndarray]:
+    """Twin of osl/scratch_layer_alpha.h for a view along the normal (round footprint of radius ``r_uv`` in UV):
+    (α'_k [..., N], Σ α'_k [...]) at UV points ``uv [..., 2]`` (eq. 3 over the footprint, eq. 7, §6.1).
+
+    Per layer: the footprint's spread R = r_uv max(|R(Θ_k)ᵀ-rows / (l, w)|) in noise cells; α_k = the union of
+    the 3x3 cells' scratch disks (radius d) over the footprint disk, faded to c̄(d) by smoothstep(0.2, 0.8, R);
+    culled below ALPHA_CULL; combined by ``union_alpha``.  Past r_uv max(1/l, 1/w) >= 0.8 √2 every layer is
+    far: ``far_alpha``."""
+    uv = np.asarray(uv, np.float64)
+    d = float(np.clip(params.density, 0.0, 1.0))
+    cbar = float(coverage_lookup(d))
+    inv_l, inv_w = 1.0 / params.length, 1.0 / params.width
+    n = params.n_layers
+    shape = uv.shape[:-1]
+    if r_uv * max(inv_l, inv_w) >= FAR_SPREAD * math.sqrt(2.0):
+        a = np.broadcast_to(far_alpha(cbar, n), shape + (n,)).copy()
+        return a, a.sum(-1)
+    theta_k, xi_k = layer_transforms(params)
+    raw = np.empty(shape + (n,))
+    for k in range(n):
+        ck, sk = math.cos(theta_k[k]), math.sin(theta_k[k])
+        y = np.stack([(ck * uv[..., 0] + sk * uv[..., 1]) * inv_l + xi_k[k, 0],
+                      (-sk * uv[..., 0] + ck * uv[..., 1]) * inv_w + xi_k[k, 1]], -1)
+        # semi-axes (view along the normal: a1 = (0, r), a2 = (r, 0) in UV, as the shader's pv = (1, 0))
+        e1 = np.hypot(sk * r_uv * inv_l, ck * r_uv * inv_w)
+        e2 = np.hypot(ck * r_uv * inv_l, -sk * r_uv * inv_w)
+        spread = max(e1, e2)
+        t = min(max((spread - 0.2) / 0.6, 0.0), 1.0)
+        fade = t * t * (3 - 2 * t)
+        a = np.full(shape, cbar)
+        if fade < 1.0:
+            R = max(spread, 1e-6)
+            cell = np.floor(y)
+            ci = cell.astype(np.int64)
+            miss = np.ones(shape)
+            for j in (-1, 0, 1):
+                for i in (-1, 0, 1):
+                    hx, hy = _hash_int2_to_vector2(ci[..., 0] + i, ci[..., 1] + j)
+                    dist = np.hypot(cell[..., 0] + i + hx - y[..., 0], cell[..., 1] + j + hy - y[..., 1])
+                    miss *= 1.0 - _disk_overlap(d, R, dist)
+            a = (1.0 - miss) + (cbar - (1.0 - miss)) * fade
+        raw[..., k] = np.where(a < ALPHA_CULL, 0.0, a)
+    return union_alpha(raw)
 
 
 def merged_layers(params: LayerParams, n_max: int) -> LayerParams:
