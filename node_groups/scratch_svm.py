@@ -47,7 +47,7 @@ TABLE_ROWS = "scratch_table_rows"
 LAYER_CONST = "scratch_layer_const"
 #: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, as ``osl.scratch_svbrdf.ALPHA_CULL``) below this
 #: density: the mean coverage of [F1 <= d] is c̄(d) = π d² for small d (one feature point per unit cell; exact as
-#: d -> 0, 2 % high at d = 0.1 against ``precompute.scratch.layers.mean_coverage``), so c̄(d) < 1e-6 for
+#: d -> 0, 0.2 % high at d = 0.1 against the quadrature of ``precompute.scratch.layers.coverage_table``), so c̄(d) < 1e-6 for
 #: d < sqrt(1e-6 / π) = 5.6e-4.  The SVM path has no footprint: it culls wherever the OSL path's far field would.
 CULL_DENSITY = math.sqrt(1e-6 / math.pi)
 #: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
