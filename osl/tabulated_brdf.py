@@ -6,19 +6,8 @@ shader (``osl.specialise``); the sampling, its density and the table layout are 
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..precompute.tables.tabulated_brdf import MAX_FLOATS, closure_tables  # noqa: F401 - re-exports
 from . import const_array, specialise
-
-
-def color_array(name: str, rgb, per_line: int = 4) -> str:
-    """``color name[n] = {color(r, g, b), ...};`` of ``rgb`` (n, 3), float32-exact literals: one array read
-    per table tap in the shader instead of three float reads (A/B in one run, iso 32² x 32, 2 rounds at load
-    20: 1.28x / 1.27x the SVM Glossy vs 1.35x / 1.64x; bench/out/tabulated_cost.md)."""
-    items = [f"color({r:.9g}, {g:.9g}, {b:.9g})" for r, g, b in np.asarray(rgb, np.float32).reshape(-1, 3).tolist()]
-    lines = ["        " + ", ".join(items[i:i + per_line]) for i in range(0, len(items), per_line)]
-    return f"    color {name}[{len(items)}] = {{\n" + ",\n".join(lines) + "\n    };\n"
 
 
 def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> str:
@@ -29,7 +18,7 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> 
         raise ValueError(f"name: expected an OSL identifier, got {name!r}")
     tb = closure_tables(brdf, alpha)
     D = tb.res * tb.res
-    tables = (color_array("F", tb.F.reshape(-1, 3)) + const_array("CDF", tb.cdf.ravel())
+    tables = (const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
               + const_array("GUIDE", tb.guide.ravel(), "int"))
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,

@@ -34,7 +34,8 @@ keeps each cell's mass exactly.
 
 1. one ωo node o is picked with probability equal to its interpolation weight (an unbiased estimate
    of the interpolation in ωo);
-2. a ωi cell k is drawn from row o's CDF (probability P_k), and a target point is jittered uniformly
+2. a ωi cell k is drawn from row o's CDF (probability P_k; the inverse CDF found from a guide table,
+   ``guide_table`` / ``guide_pick``: O(1) expected reads), and a target point is jittered uniformly
    in (s, t) inside the cell: ωi = v/|v|, v = (px, py, 1-|px|-|py|) (``hemi_oct_decode``);
 3. the solid-angle density of the target is  p(ωi) = P_k / (h² J(s, t)),  h = 2/res the cell side,
    J = dω/(ds dt) = 1 / (2 |v|³) (``jacobian``);
