@@ -18,7 +18,8 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> 
         raise ValueError(f"name: expected an OSL identifier, got {name!r}")
     tb = closure_tables(brdf, alpha)
     D = tb.res * tb.res
-    tables = const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
+    tables = (const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
+              + const_array("GUIDE", tb.guide.ravel(), "int"))
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
                            ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent)),

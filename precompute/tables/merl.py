@@ -9,7 +9,8 @@ Half/difference angles (Rusinkiewicz 1998): h = normalize(ωi + ωo), θh its po
 by -φh about n and by -θh about the binormal gives (θd, φd).  Bins: θh index = ⌊√(θh/(π/2))·90⌋
 (denser near the specular peak), θd index = ⌊θd/(π/2)·90⌋, φd index = ⌊φd/π·180⌋ with φd folded
 into [0, π) (reciprocity).  ``lookup`` is the reference's nearest-bin lookup; ``to_tabulated``
-resamples onto the closure's isotropic grid (box-averaged over each ωi cell).
+resamples onto the closure's isotropic grid (box-averaged over each half-vector cell by default: the
+half layout keeps sharp lobes' energy at every view, see its docstring).
 """
 from __future__ import annotations
 
@@ -125,11 +126,19 @@ def tabulate(f) -> np.ndarray:
     return out.reshape(*SHAPE, 3)
 
 
-def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int = 2) -> TabulatedBRDF:
-    """The MERL BRDF on the isotropic grid of the tabulated closure (``res`` x ``res`` ωi cells, each
-    the average of ``sub``² nearest-bin lookups; ``n_theta`` view angles)."""
+def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int | None = None, half: bool = True) -> TabulatedBRDF:
+    """The MERL BRDF on the isotropic grid of the tabulated closure: ``res`` x ``res`` cells, each the average
+    of ``sub``² nearest-bin lookups (default 4 for ``half``, else 2); ``n_theta`` view angles.
+
+    ``half`` (default): the cells are half vectors over the whole hemisphere (``TabulatedBRDF`` half layout,
+    extent 1), where a specular peak sits on the same cells at every view.  Measured on MERL files written from
+    Cycles' GGX (x 0.8, + 0.02 Lambert), iso 32² x 32, rendered energy (the sampler's mean weight) vs the
+    analytic albedo at θo = 0..75°: half layout -0.2..-0.4 % (α 0.2), -0.6..-0.8 % (0.08), -1.7..-2.2 % (0.04),
+    -2.7..-3.2 % (0.02); the ωi layout (``half=False``) +0.4..-0.4 %, +1.2..-2.2 %, +2.4..-4.3 %, +7.2..-8.9 %
+    (sharp lobes gain or lose energy depending on the view)."""
     t = np.asarray(table, np.float64)
     if t.shape != (*SHAPE, 3):
         raise ValueError(f"table: expected shape {(*SHAPE, 3)}, got {t.shape}")
+    sub = (4 if half else 2) if sub is None else sub
     return TabulatedBRDF.from_function(lambda wi, wo: lookup(t, wi, wo), res, iso=True, n_theta=n_theta, sub=sub,
-                                       info={"source": "merl"})
+                                       info={"source": "merl"}, half=bool(half), extent=1.0)

@@ -56,13 +56,59 @@ def test_lookup_reproduces_the_analytic_brdf(merl_file):
     assert np.median(np.abs(merl.lookup(t, wi @ R.T, wo @ R.T) - b)[ok] / b[ok]) < 0.01
 
 
+def analytic_albedo(f, wo, n=1500, n_phi=360):
+    """∫ f cos θi dωi of an analytic BRDF: midpoint rule over the half vector (θh = x² π/2, dense at the
+    peak; dωi = 4 |ωo·h| dωh), converged to < 0.1 % for GGX α >= 0.02."""
+    x = (np.arange(n) + 0.5) / n
+    th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n
+    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
+    TH, PH = np.meshgrid(th, ph, indexing="ij")
+    h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
+    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
+    out = []
+    for w in wo:
+        wi, ok = tb.reflect(np.broadcast_to(w, h.shape), h)
+        v = f(np.where(ok[:, None], wi, [0, 0, 1.0]), np.broadcast_to(w, h.shape))
+        out.append((v * (ok * wi[:, 2] * 4 * np.abs(h @ w) * dwh)[:, None]).sum(0))
+    return np.array(out)
+
+
 def test_closure_table_albedo_matches_analytic(merl_file):
-    """The resampled closure table's directional albedo equals the analytic BRDF's (tabulated on the same
-    grid) within 1 % at four views."""
+    """The resampled closure table's directional albedo equals the analytic BRDF's within 2 % at four views
+    (66-84°, two grazing; measured -0.3..-1.7 %, the largest at 82°; the ωi layout -0.3..+0.2 % here: the
+    half layout trades a little at grazing views of broad lobes for sharp lobes, next test)."""
     B = merl.to_tabulated(merl.read_merl(merl_file), 24, 24)
-    A = tb.TabulatedBRDF.from_function(analytic, 24, iso=True, n_theta=24)
+    assert B.half
     wo = _dirs(4, 3)
-    np.testing.assert_allclose(B.albedo(wo), A.albedo(wo), rtol=0.01)
+    np.testing.assert_allclose(B.albedo(wo), analytic_albedo(analytic, wo), rtol=0.02)
+
+
+def test_sharp_lobe_keeps_its_energy_at_every_view():
+    """A sharp GGX (α = 0.04) written as a MERL file: what the closure renders (the sampler's mean weight x
+    lobe albedo, 40k samples, standard error < 0.3 %) stays within 3 % of the analytic albedo at θo = 0..75°
+    (measured -1.7..-2.2 % on 32² x 32; the error is a view-independent loss, MERL's nearest-bin lookup).  The
+    ωi layout (``half=False``) fails the same check (+2.4..-4.3 %: it gains or loses energy with the view)."""
+    def f(wi, wo):
+        return 0.8 * tb._ggx_unit(wi, wo, 0.04)[:, None] * np.ones(3) + 0.02 / np.pi
+    table = np.maximum(merl.tabulate(f), 0.0)
+    th = np.radians([0.0, 20.0, 40.0, 60.0, 75.0])
+    wo = np.stack([np.sin(th), 0 * th, np.cos(th)], -1)
+    ref = analytic_albedo(f, wo)[:, 0]
+
+    def rendered(B):
+        T = tb.closure_tables(B)
+        out = []
+        for w in wo:
+            n = 40000
+            WO = np.repeat(w[None], n, 0)
+            _, m, W, _ = tb.sample(T, WO, np.random.default_rng(0).random((n, 4)))
+            out.append(np.mean(W[:, 0] * tb.lobe_albedo(np.sum(WO * m, 1), T.alpha)))
+        return np.array(out) / ref - 1.0
+
+    err = rendered(merl.to_tabulated(table, 32, 32))
+    assert np.all(np.abs(err) < 0.03), err
+    assert err.max() - err.min() < 0.01, err                   # the same at every view
+    assert np.any(np.abs(rendered(merl.to_tabulated(table, 32, 32, half=False))) > 0.03)
 
 
 def test_bad_files(tmp_path):
