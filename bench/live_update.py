@@ -26,6 +26,7 @@ A/B interleaved, medians of ``--repeats``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import tempfile
@@ -43,6 +44,7 @@ def _setup():
 
 
 _CPU: list = []
+_DEFAULT_RES: list = []
 
 
 def _timed(fn) -> float:
@@ -98,10 +100,82 @@ def _ui_block(live, mat, prop, value) -> dict:
         bpy.app.timers.register, bpy.app.timers.is_registered = reg, isreg
 
 
+@contextlib.contextmanager
+def _before():
+    """The in-place update as it was before this round (for an interleaved A/B): the tracer evaluates the exact
+    conductor formula per bounce, every table node is repointed one by one, every socket value rewritten."""
+    from scratch_materials.precompute.scratch import material as pm
+    from scratch_materials.scratch_addon import scratch_material as sm
+
+    saved = pm.trace_fresnel, sm._repoint_images, sm._set_default
+
+    def repoint(tree, table_nodes, new):
+        for node in table_nodes:
+            node.image = new[node.image.name.rsplit(" ", 1)[0]]
+
+    def set_default(socket, value):
+        socket.default_value = value
+
+    pm.trace_fresnel, sm._repoint_images, sm._set_default = (lambda p: p.fresnel), repoint, set_default
+    try:
+        yield
+    finally:
+        pm.trace_fresnel, sm._repoint_images, sm._set_default = saved
+
+
+def _table_rows(spec_of, repeats: int) -> list:
+    """Tables alone (``precompute.scratch.material.tables``, no cache) of a profile miss at the material's
+    resolution, with the tabulated / exact Fresnel interleaved, and the exact traces' share (``beam.trace_exact``
+    via ``slices._trace``, CPU)."""
+    import dataclasses
+
+    from scratch_materials.precompute.scratch import material as pm, profiles, slices
+
+    real_trace, real_tf = slices._trace, pm.trace_fresnel
+    traced = []
+
+    def timed_trace(*a, **k):
+        c0 = time.process_time()
+        try:
+            return real_trace(*a, **k)
+        finally:
+            traced[-1] += time.process_time() - c0
+
+    spec = spec_of()
+    tab, exact, tr_tab, tr_exact = [], [], [], []
+    slices._trace = timed_trace
+    try:
+        for i in range(repeats):
+            for use_table in ((True, False) if i % 2 == 0 else (False, True)):
+                p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i))
+                pm.trace_fresnel = real_tf if use_table else (lambda q: q.fresnel)
+                traced.append(0.0)
+                t = _timed(lambda p=p: pm.lobes.table_lobes(p.profile, pm.trace_fresnel(p), p.resolution, p.slices,
+                                                            use_cache=False))
+                (tab if use_table else exact).append(t)
+                (tr_tab if use_table else tr_exact).append((_CPU[-1], traced[-1]))
+    finally:
+        slices._trace, pm.trace_fresnel = real_trace, real_tf
+    M = spec.resolution
+    return [_row(f"tables alone (table_lobes, M = {M}), tabulated Fresnel", "miss", tab, [c for c, _ in tr_tab]),
+            _row(f"tables alone (table_lobes, M = {M}), exact Fresnel per bounce", "miss", exact,
+                 [c for c, _ in tr_exact]),
+            ("  of which the exact traces (beam.trace_exact), tabulated Fresnel", "miss", "-",
+             statistics.median([t for _, t in tr_tab]), len(tr_tab))]
+
+
+def default_resolution() -> int:
+    """The table resolution of a new material (the panel's default, ``ScratchMaterialSettings.resolution``)."""
+    import bpy
+
+    return int(bpy.types.Material.bl_rna.properties["scratch"].fixed_type.bl_rna.properties["resolution"].default)
+
+
 def timing(repeats: int) -> list:
     api, live, render, scratch_material = _setup()
     render.reset_scene()
     # the 'demo' preset of issue 18's measurements (pinned: the preset itself is the README image's material)
+    _DEFAULT_RES.append(default_resolution())
     mat = api.make_scratched_material("demo", profile=("quartic", 0.08),
                                       layers=dict(n_layers=32, theta_deg=360.0, length=0.3, width=3e-4, density=0.2))
     rows = []
@@ -110,17 +184,24 @@ def timing(repeats: int) -> list:
                                 ("socket: tint", "tint", [(1, 0.8, 0.6), (1, 1, 1)])):
         ts = [_timed(lambda v=v: setattr(s, prop, v)) for _ in range(repeats) for v in values]
         rows.append(_row(label, "-", ts))
-    misses, forced, c_miss, c_forced = [], [], [], []
-    for i in range(repeats):                              # A/B interleaved: in place vs forced rebuild
+    misses, forced, c_miss, c_forced, old_miss, c_old = [], [], [], [], [], []
+    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (session 3), forced rebuild
         v = 0.06 + 0.013 * (i + 1)                       # never seen: cache miss
         misses.append(_timed(lambda v=v: setattr(s, "profile_value", v)))
         c_miss.append(_CPU[-1])
         assert live.last_update()["kind"] == "tables", live.last_update()
+        with _before():
+            old_miss.append(_timed(lambda v=v: setattr(s, "profile_value", v + 0.0031)))
+            c_old.append(_CPU[-1])
+            assert live.last_update()["kind"] == "tables", live.last_update()
         with live.suspended():
             s.profile_value = 0.0605 + 0.013 * (i + 1)
         forced.append(_timed(lambda: live.sync(mat, force=True)))
         c_forced.append(_CPU[-1])
     rows.append(_row("table: profile value (in place)", "miss", misses, c_miss))
+    rows.append(_row("table: profile value (in place), as before: exact Fresnel per bounce, images repointed per "
+                     "node, unchanged sockets rewritten", "miss", old_miss, c_old))
+    rows.extend(_table_rows(spec_of=lambda: live._spec(mat), repeats=repeats))
     rows.append(_row("table: profile value, forced rebuild (old path of a shape change)", "miss", forced, c_forced))
     hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.06 + 0.013 * (i + 1)
                                                                          for i in range(repeats)]]
@@ -213,7 +294,8 @@ def main(argv: list[str]) -> int:
         return 0
     rows = timing(a.repeats)
     report("live_update", ["edit", "cache", "wall s (median)", "CPU s (median)", "n"], rows,
-           f"32 layers (Fig. 1d), iron, quartic 0.08, table lobes, resolution 256, OSL + SVM + EEVEE twins; headless, synchronous "
+           f"32 layers (Fig. 1d), iron, quartic 0.08, table lobes, resolution 256 (a new material's default: "
+           f"{_DEFAULT_RES[0]}), OSL + SVM + EEVEE twins; headless, synchronous "
            f"except the UI rows; CPU s = process CPU (all threads) of the edit; "
            f"load average {load[0]:.1f} on {os.cpu_count()} cores (shared machine: noisy).")
     return 0

@@ -534,6 +534,44 @@ def _own_race_groups(tree) -> list:
 _SOURCES: dict = {}
 
 
+def _set_default(socket, value) -> None:
+    """``socket.default_value = value`` unless it holds that value already (as float32): every RNA write
+    updates the whole node tree (about 7 ms on a 32-layer material of 1800 nodes)."""
+    old = socket.default_value
+    if isinstance(old, float):
+        same = old == float(np.float32(value))
+    elif hasattr(old, "__len__") and not isinstance(old, str):
+        same = len(old) == len(value) and all(a == float(np.float32(b)) for a, b in zip(old, value))
+    else:
+        same = old == value
+    if not same:
+        socket.default_value = value
+
+
+def _repoint_images(tree, table_nodes, new: dict) -> None:
+    """Point ``table_nodes`` at the ``new`` table images (by kind, the name without its content hash).  An old
+    image only these nodes use is swapped by one ID remap (``Image.user_remap``) and one tree update: assigning
+    ``node.image`` updates the whole tree per node (132 table nodes of a 32-layer material: 0.9 s CPU, 0.03 s
+    remapped).  An image another datablock also uses (tables another material shares) keeps its other users:
+    these nodes are repointed one by one."""
+    by_old: dict = {}
+    for node in table_nodes:
+        by_old.setdefault(node.image.as_pointer(), (node.image, []))[1].append(node)
+    remapped = False
+    for old, nodes in by_old.values():
+        img = new[old.name.rsplit(" ", 1)[0]]
+        if img == old:
+            continue
+        if old.users == len(nodes) and not old.use_fake_user:
+            old.user_remap(img)
+            remapped = True
+        else:
+            for node in nodes:
+                node.image = img
+    if remapped:
+        tree.update_tag()
+
+
 def apply_tables(material, params: ScratchParams, prepared: dict | None = None) -> bpy.types.Material:
     """Update ``material`` in place to ``params`` whose node-graph structure equals the built one
     (``live_keys``): new tables into its table images, the new OSL source compiled into its script node,
@@ -567,7 +605,7 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
                 live = ("Color", "Base Color", "Roughness") if params.base["type"] != "mirror" else ()
                 for new_in, old_in in zip(base_new.inputs, base_old.inputs):
                     if hasattr(new_in, "default_value") and new_in.name not in live:
-                        old_in.default_value = new_in.default_value   # a base's colour, roughness: live sockets
+                        _set_default(old_in, new_in.default_value)   # a base's colour, roughness: live sockets
         finally:
             if base_new is not None:
                 tree.nodes.remove(base_new)
@@ -583,17 +621,16 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
                 raise NeedsRebuild("the table images change width")
             if img.size[1] != node.image.size[1] and (not rows or _prefix(img) not in _ROW_IMAGES):
                 raise NeedsRebuild("the table images change height")
-        for node in table_nodes:
-            node.image = new[node.image.name.rsplit(" ", 1)[0]]
+        _repoint_images(tree, table_nodes, new)
         S = int(np.asarray(svm_lobes["cdf"]).shape[0])   # adaptive φo nodes: rows of the A, C, Y images
         for node in rows:   # row = up / S + row_k: row_k ((k + 0.5) / S) comes from the N image
-            node.inputs[1].default_value = 1.0 / S
+            _set_default(node.inputs[1], 1.0 / S)
         ax = float(svm_lobes["alpha_x"])
         rough, aniso = glossy_node_params(ax, min(max(float(svm_lobes["alpha_y"]), ax), 1.0))
         for node in scratch_svm.tree_nodes(tree):
             if node.get(scratch_svm.TABLE_GLOSSY):
-                node.inputs["Roughness"].default_value = float(rough)
-                node.inputs["Anisotropy"].default_value = float(aniso)
+                _set_default(node.inputs["Roughness"], float(rough))
+                _set_default(node.inputs["Anisotropy"], float(aniso))
         lp = params.layers
         if lp is not None and _layer_transforms_change(material, lp):
             theta_k, xi_k = scratch_layers.layer_transforms(lp)

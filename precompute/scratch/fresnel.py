@@ -16,6 +16,9 @@ Models
 - ``conductor(n, k)``: exact unpolarised Fresnel reflectance of a conductor with complex
   IOR ``n + i k`` seen from air (``(Rs + Rp) / 2``); ``k = 0`` gives the exact dielectric.
 - ``conductor_preset(name)``: ``conductor`` with tabulated n, k at R/G/B = 650/550/450 nm.
+- ``tabulated(model, tol=1e-5)``: ``model`` sampled on a uniform grid of cos θ, linear in between, the
+  grid the coarsest (power of two) whose interpolation error against the exact formula is below ``tol``:
+  what the tracer evaluates at every bounce (about 4x cheaper than the exact conductor formula).
 
 Every model gives ``F(cos=0) = 1`` (grazing), which the scratch BRDF relies on:
 ``rho_s(theta_o = pi/2) = rho_m``.
@@ -35,6 +38,8 @@ __all__ = [
     "lazanyi",
     "conductor",
     "conductor_preset",
+    "Tabulated",
+    "tabulated",
     "PRESETS",
     "WAVELENGTHS_NM",
 ]
@@ -181,6 +186,83 @@ class Conductor(Fresnel):
 
     def cache_key(self) -> dict:
         return {"model": "conductor", "n": [float(v) for v in self.n], "k": [float(v) for v in self.k]}
+
+
+@dataclass(frozen=True, eq=False)
+class Tabulated(Fresnel):
+    """A Fresnel model sampled at ``cos = i / N`` (i = 0..N), linear in between (``tabulated``).
+
+    ``value [N+1, C]`` the samples, ``slope [N, C]`` their differences, ``source`` the exact model,
+    ``error`` the measured worst absolute error against it (``tabulated``).
+    """
+
+    value: np.ndarray
+    slope: np.ndarray
+    source: Fresnel
+    error: float
+
+    @property
+    def channels(self) -> int:
+        return int(self.value.shape[1])
+
+    def __call__(self, cos_theta) -> np.ndarray:
+        c = np.asarray(cos_theta, dtype=np.float64)
+        n = self.slope.shape[0]
+        x = np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * n
+        i = np.minimum(x.astype(np.intp), n - 1)
+        t = (x - i)[..., None]
+        return self.value[i] + t * self.slope[i]
+
+    def cache_key(self) -> dict:
+        return {"model": "tabulated", "source": self.source.cache_key(), "cells": int(self.slope.shape[0])}
+
+
+#: finest grid ``tabulated`` tries (2^16 cells: 1.5 MB for RGB)
+_MAX_CELLS = 1 << 16
+
+
+def _interpolation_error(model: Fresnel, value: np.ndarray) -> float:
+    """Worst |linear interpolation - exact| of ``model`` sampled as ``value`` at 7 points inside each cell
+    (a smooth F errs most near a cell's middle; a kink, e.g. a dielectric's critical angle, anywhere)."""
+    n = value.shape[0] - 1
+    t = np.arange(1, 8) / 8.0
+    c = (np.arange(n)[:, None] + t[None, :]) / n
+    lin = value[:-1, None, :] + t[None, :, None] * (value[1:] - value[:-1])[:, None, :]
+    return float(np.max(np.abs(lin - model(c))))
+
+
+def tabulated(model: Fresnel, tol: float = 1e-5) -> Fresnel:
+    """``model`` on the coarsest uniform cos θ grid (N = 2^j cells, linear between samples) whose
+    interpolation error, measured against ``model`` at 7 points inside every cell, is below ``tol``
+    (absolute reflectance, dimensionless).  The samples at the grid points are ``model``'s own, so
+    ``F(cos = 0) = 1`` and ``F(cos = 1) = F0`` hold exactly.  A model that no grid up to 2^16 cells meets
+    (a kink sharper than ``tol`` allows) or a model cheaper than the lookup (Schlick) comes back as is.
+    Cached per model parameters (the grid is built once per metal).
+    """
+    if not isinstance(model, Fresnel) or isinstance(model, (Tabulated, Schlick)):
+        return model
+    tol = float(tol)
+    if not (np.isfinite(tol) and 0.0 < tol < 1.0):
+        raise ValueError(f"tol: allowed range is (0, 1), got {tol!r}")
+    key = (repr(model.cache_key()), tol)
+    hit = _TABLES.get(key)
+    if hit is not None:
+        return hit
+    n = 256
+    while n <= _MAX_CELLS:
+        value = model(np.linspace(0.0, 1.0, n + 1))
+        err = _interpolation_error(model, value)
+        if err < tol:
+            out = Tabulated(value, np.diff(value, axis=0), model, err)
+            if len(_TABLES) > 64:  # bounded: a long session of metal edits
+                _TABLES.clear()
+            _TABLES[key] = out
+            return out
+        n *= 2
+    return model
+
+
+_TABLES: dict = {}
 
 
 def schlick(ior=1.5, *, f0=None) -> Schlick:

@@ -166,9 +166,21 @@ def fit_error(lobe_data: dict) -> float:
         errs = [lobe_data["m"]["error"]] + ([] if lobe_data["0"] is None else [lobe_data["0"]["error"]])
     return float(max(np.max(e) for e in errs))
 
+#: worst absolute Fresnel error the tracer may make (``fresnel.tabulated``: the conductor formula on a fine
+#: cos θ grid instead of the exact formula at every bounce; a reflectance error far below the tables' own
+#: tolerances, 2e-3 and 3e-3 of ``slices.view_slices``, and the ~2-digit n, k of the presets)
+FRESNEL_TOL = 1e-5
+
+
+def trace_fresnel(params: ScratchParams):
+    """The Fresnel model the tables are traced with: ``params.fresnel`` tabulated (``fresnel.tabulated``,
+    worst error ``FRESNEL_TOL``; None stays None)."""
+    return None if params.fresnel is None else fresnel_mod.tabulated(params.fresnel, FRESNEL_TOL)
+
+
 def table_lobe_data(params: ScratchParams, quality: str = "full") -> dict:
     """Table lobes of ``params`` from exact view slices (``lobes.table_lobes``, cached by content hash)."""
-    return lobes.table_lobes(params.profile, params.fresnel, resolution=params.resolution, slices=params.slices,
+    return lobes.table_lobes(params.profile, trace_fresnel(params), resolution=params.resolution, slices=params.slices,
                              quality=quality)
 
 
@@ -181,12 +193,13 @@ def tables_cached(params: ScratchParams, quality: str = "full") -> bool:
     """True if ``tables(params, quality)`` reads its lobe tables from the cache (False when unsure)."""
     if not has_preview(params):
         return False
-    return lobes.table_lobes_cached(params.profile, params.fresnel, params.resolution, params.slices, quality)
+    return lobes.table_lobes_cached(params.profile, trace_fresnel(params), params.resolution, params.slices, quality)
 
 
 def brdf_table(params: ScratchParams):
     """The scratch BRDF of ``params`` (ρ0, ρm, γ; ``brdf.simulate``, cached by content hash)."""
-    return scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=params.fresnel, cache=True)
+    return scratch_brdf.simulate(params.profile, resolution=params.resolution, fresnel=trace_fresnel(params),
+                                 cache=True)
 
 
 def tables(params: ScratchParams, quality: str = "full") -> dict:
