@@ -36,6 +36,7 @@ import bpy
 import numpy as np
 
 from ..precompute.cycles.glossy import glossy_node_params
+from ..precompute.scratch.layers import ALPHA_CULL
 
 _PI = math.pi
 #: custom property marking the table lobe's Glossy node
@@ -45,11 +46,11 @@ TABLE_GLOSSY = "scratch_table_glossy"
 TABLE_ROWS = "scratch_table_rows"
 #: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
 LAYER_CONST = "scratch_layer_const"
-#: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, as ``osl.scratch_svbrdf.ALPHA_CULL``) below this
+#: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, ``precompute.scratch.layers.ALPHA_CULL``) below this
 #: density: the mean coverage of [F1 <= d] is c̄(d) = π d² for small d (one feature point per unit cell; exact as
 #: d -> 0, 0.2 % high at d = 0.1 against the quadrature of ``precompute.scratch.layers.coverage_table``), so c̄(d) < 1e-6 for
 #: d < sqrt(1e-6 / π) = 5.6e-4.  The SVM path has no footprint: it culls wherever the OSL path's far field would.
-CULL_DENSITY = math.sqrt(1e-6 / math.pi)
+CULL_DENSITY = math.sqrt(ALPHA_CULL / math.pi)
 #: name prefix of the table lobe's images (``table_images``: "<prefix><role> <content hash>")
 TABLE_IMAGE_PREFIX = "Scratch table "
 

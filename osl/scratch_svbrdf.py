@@ -59,8 +59,8 @@ def _f32(x) -> float:
 #: Above this many layers, one layer is picked per shading point (probability α_k / ᾱ) so the
 #: closure count stays constant; at or below it every layer is summed.
 MAX_SUMMED_LAYERS = 2
-#: Layers whose α_k is below this are culled (the paper's threshold, §6.1).
-ALPHA_CULL = 1e-6
+#: Layers whose α_k is below this are culled (the paper's threshold, §6.1; the numpy twins' constant).
+ALPHA_CULL = layers_mod.ALPHA_CULL
 
 
 @dataclass

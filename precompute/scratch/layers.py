@@ -192,7 +192,8 @@ def coverage_lookup(d, ratio: np.ndarray | None = None, dmax: float = float(COVE
     return d * d * (g[i0] + (g[i0 + 1] - g[i0]) * (x - i0))
 
 
-#: α_k below it are 0 (§6.1; the value of ``osl.scratch_svbrdf.ALPHA_CULL``)
+#: α_k below it are 0 (§6.1): the one value of the shaders' ALPHA_CULL (``osl.scratch_svbrdf``) and the SVM
+#: path's cull density (``node_groups.scratch_svm.CULL_DENSITY``)
 ALPHA_CULL = 1e-6
 #: footprint spread (noise cells) from which a layer's α_k is its mean c̄(d) (osl/scratch_layer_alpha.h)
 FAR_SPREAD = 0.8
