@@ -218,13 +218,35 @@ class ScratchGrid:
         return offsets.astype(np.int64), sid.astype(np.int64)
 
 
+#: at most this many (cell, segment) entries in a grid (int32 while building, int64 CSR: ~0.4 GB at the bound);
+#: an automatic cell size grows until the estimate fits, an explicit one that cannot fit is refused up front
+MAX_GRID_ITEMS = 20_000_000
+#: (segment, cell) bounding-box candidates tested per chunk while building (~0.1 GB of temporaries)
+GRID_CHUNK = 1_000_000
+#: segments per block while building / estimating (bounds the per-segment temporaries)
+GRID_BLOCK = 1_000_000
+
+
+def _grid_items_estimate(p0, p1, origin, cell_size: float) -> int:
+    """Upper estimate of the cells a segment list touches: a segment crossing |Δix| + |Δiy| cell borders touches
+    that many + 1 cells; the conservative half-diagonal test keeps up to ~3x that."""
+    n = 0.0
+    for a in range(0, len(p0), GRID_BLOCK):
+        ia = np.floor((p0[a:a + GRID_BLOCK] - origin) / cell_size)
+        ib = np.floor((p1[a:a + GRID_BLOCK] - origin) / cell_size)
+        n += float(np.sum(3.0 * (np.abs(ib - ia).sum(axis=1) + 1.0)))
+    return int(n)
+
+
 def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells: int = 1 << 20) -> ScratchGrid:
     """Uniform grid index over the scratches' UV bounding box (§4).
 
     ``cell_size`` in UV units (default: about √M cells per side, at most
-    ``max_cells`` cells).  A segment is stored in every cell of its bounding box
-    whose centre is within half a cell diagonal of the segment (a conservative
-    segment/cell overlap test), so no overlapping cell is missed.
+    ``max_cells`` cells, coarser if the index would hold more than ``MAX_GRID_ITEMS`` entries).  A segment
+    is stored in every cell of its bounding box whose centre is within half a cell diagonal of the segment
+    (a conservative segment/cell overlap test), so no overlapping cell is missed.  Bounded memory: the
+    candidates are tested in chunks of ``GRID_CHUNK``; an explicit ``cell_size`` whose index would exceed
+    ``MAX_GRID_ITEMS`` raises ValueError with the estimate before any work.
     """
     M = len(scratches)
     if M == 0:
@@ -232,22 +254,89 @@ def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells:
     pts = np.concatenate([scratches.p0, scratches.p1])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     ext = np.maximum(hi - lo, 1e-12 * max(1.0, float(np.abs(pts).max())))
-    if cell_size is None:
+    auto = cell_size is None
+    if auto:
         cell_size = float(max(ext.max() / max(np.sqrt(M), 1.0), np.sqrt(ext[0] * ext[1] / max_cells), 1e-300))
     cell_size = float(cell_size)
     if not (np.isfinite(cell_size) and cell_size > 0.0):
         raise ValueError("cell_size must be finite and > 0 (UV units)")
+    est = _grid_items_estimate(scratches.p0, scratches.p1, lo, cell_size)
+    while est > MAX_GRID_ITEMS:
+        if not auto:
+            raise ValueError(f"cell_size: {cell_size:g} UV units puts ~{est:.3g} (cell, scratch) entries in the grid "
+                             f"index, above {MAX_GRID_ITEMS:.3g} (memory); use a larger cell_size (or None)")
+        if 3 * M > MAX_GRID_ITEMS:
+            raise ValueError(f"scratches: {M} scratches need at least ~{3 * M:.3g} grid entries, above "
+                             f"{MAX_GRID_ITEMS:.3g} (memory)")
+        cell_size *= min(max(1.5 * est / MAX_GRID_ITEMS, 1.25), 64.0)
+        est = _grid_items_estimate(scratches.p0, scratches.p1, lo, cell_size)
     nx, ny = (np.floor(ext / cell_size).astype(np.int64) + 1).tolist()
     if nx * ny > max_cells:
         raise ValueError(f"cell_size too small: {nx}x{ny} cells exceed max_cells={max_cells}")
     grid = ScratchGrid(lo.copy(), cell_size, nx, ny, np.zeros(nx * ny + 1, np.int64), np.zeros(0, np.int64))
-    blo, bhi, _ = grid._cell_range(np.minimum(scratches.p0, scratches.p1), np.maximum(scratches.p0, scratches.p1))
-    si, cx, cy = cell_pairs(blo, bhi)
-    centre = lo + (np.stack([cx, cy], axis=1) + 0.5) * cell_size
     half_diag = 0.5 * np.sqrt(2.0) * cell_size * (1.0 + 1e-9)
-    keep = point_segment_distance(centre, scratches.p0[si], scratches.p1[si]) <= half_diag
-    start, items = csr_from_pairs((cy * nx + cx)[keep], si[keep], nx * ny)
+    cells, items = [], []
+    for s0 in range(0, M, GRID_BLOCK):            # blocks of segments, then chunks of ~GRID_CHUNK candidates
+        p0, p1 = scratches.p0[s0:s0 + GRID_BLOCK], scratches.p1[s0:s0 + GRID_BLOCK]
+        blo, bhi, _ = grid._cell_range(np.minimum(p0, p1), np.maximum(p0, p1))
+        cum = np.cumsum(_corridor_bound(p0, p1, blo, bhi))
+        a = 0
+        while a < len(p0):
+            b = max(int(np.searchsorted(cum, (cum[a - 1] if a else 0) + GRID_CHUNK, side="right")), a + 1)
+            si, cx, cy = corridor_cells((p0[a:b] - lo) / cell_size, (p1[a:b] - lo) / cell_size, blo[a:b], bhi[a:b])
+            si = si + a
+            centre = lo + (np.stack([cx, cy], axis=1) + 0.5) * cell_size
+            keep = point_segment_distance(centre, p0[si], p1[si]) <= half_diag
+            cells.append((cy * nx + cx)[keep].astype(np.int32))       # nx ny <= max_cells, M <= 1e7
+            items.append((si[keep] + s0).astype(np.int32))
+            a = b
+    start, items = csr_from_pairs(np.concatenate(cells), np.concatenate(items), nx * ny)
     return ScratchGrid(lo.copy(), cell_size, nx, ny, start, items)
+
+
+#: half a cell diagonal in cell units, with the same relative tolerance as ``build_grid``'s test
+_H = 0.5 * np.sqrt(2.0) * (1.0 + 1e-6)
+
+
+def _corridor_bound(p0, p1, blo, bhi) -> np.ndarray:
+    """Upper bound of ``corridor_cells``' candidates per segment: major-axis columns x at most 5 rows."""
+    span = bhi - blo + 1
+    major = np.where(np.abs(p1 - p0)[:, 0] >= np.abs(p1 - p0)[:, 1], 0, 1)
+    cols = np.take_along_axis(span, major[:, None], 1)[:, 0]
+    rows = np.take_along_axis(span, 1 - major[:, None], 1)[:, 0]
+    return cols * np.minimum(rows, 5)
+
+
+def corridor_cells(g0, g1, blo, bhi):
+    """Candidate cells (item, cx, cy) of segments ``g0 -> g1`` (grid coordinates, cell units): inside each
+    segment's cell box ``blo..bhi``, only the cells whose centre can lie within half a cell diagonal of the
+    segment -- per column of the major axis, the rows the segment spans over that column +- the half diagonal
+    (<= 5 rows, slope <= 1), instead of the whole box (a diagonal segment across n cells: ~5 n, not n²)."""
+    d = g1 - g0
+    major = np.where(np.abs(d[:, 0]) >= np.abs(d[:, 1]), 0, 1)
+    ar = np.arange(len(g0))
+    u0, u1 = g0[ar, major], g1[ar, major]
+    v0, v1 = g0[ar, 1 - major], g1[ar, 1 - major]
+    du = u1 - u0
+    slope = np.where(du != 0.0, (v1 - v0) / np.where(du != 0.0, du, 1.0), 0.0)
+    c_lo, c_hi = blo[ar, major], bhi[ar, major]
+    r_box_lo, r_box_hi = blo[ar, 1 - major], bhi[ar, 1 - major]
+    n_col = c_hi - c_lo + 1
+    item = np.repeat(ar, n_col)                                            # (segment, column) pairs
+    c = c_lo[item] + np.arange(item.size) - np.repeat(np.cumsum(n_col) - n_col, n_col)
+    umin, umax = np.minimum(u0, u1)[item], np.maximum(u0, u1)[item]
+    ua = np.maximum(c + 0.5 - _H, umin)
+    ub = np.minimum(c + 0.5 + _H, umax)
+    va = v0[item] + (ua - u0[item]) * slope[item]
+    vb = v0[item] + (ub - u0[item]) * slope[item]
+    r_lo = np.maximum(np.ceil(np.minimum(va, vb) - _H - 0.5), r_box_lo[item]).astype(np.int64)
+    r_hi = np.minimum(np.floor(np.maximum(va, vb) + _H - 0.5), r_box_hi[item]).astype(np.int64)
+    n_row = np.where(ua <= ub, np.maximum(r_hi - r_lo + 1, 0), 0)
+    k = np.repeat(np.arange(item.size), n_row)                             # (segment, column, row) triples
+    r = r_lo[k] + np.arange(k.size) - np.repeat(np.cumsum(n_row) - n_row, n_row)
+    it, cc = item[k], c[k]
+    mj = major[it]
+    return it, np.where(mj == 0, cc, r), np.where(mj == 0, r, cc)
 
 
 def cell_pairs(blo: np.ndarray, bhi: np.ndarray):

@@ -65,17 +65,24 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: di
     if meta is not None:
         header[_META_KEY] = json.dumps(meta, sort_keys=True)
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise ValueError(f"path: {path!r} is a folder; expected a file name (.exr)")
     folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    tmp = files.temp_file(folder, ".exr")
+    try:
+        os.makedirs(folder, exist_ok=True)
+        tmp = files.temp_file(folder, ".exr")
+    except OSError as e:          # name the user's path, not the temp file or a parent
+        raise OSError(e.errno, f"cannot write {path!r}: {e.strerror}") from e
     try:
         OpenEXR.File(header, arrays).write(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(e, OSError):
+            raise OSError(e.errno, f"cannot write {path!r}: {e.strerror}") from e
         raise
 
 

@@ -294,14 +294,13 @@ class TabulatedBRDF:
                 wi, ok = reflect(WO, x_all)
                 v = np.zeros((len(wi), 3))
                 if ok.any():                            # ρ = f cos θi cos θo J(h)
-                    v[ok] = np.asarray(f(wi[ok], WO[ok]), np.float64).reshape(int(ok.sum()), -1) \
-                        * (wi[ok, 2] * wo[2] * jacobian(st[ok]))[:, None]
+                    v[ok] = _call_f(f, wi[ok], WO[ok]) * (wi[ok, 2] * wo[2] * jacobian(st[ok]))[:, None]
                 # mean over the sub-points whose ωi is above the horizon: eval masks the rest, so a cell
                 # the horizon cuts keeps its mass (a mean over all would lose it twice)
                 n_ok = ok.reshape(res * res, sub * sub).sum(1)
                 out[:, o] = v.reshape(res * res, sub * sub, 3).sum(1) / np.maximum(n_ok, 1)[:, None]
                 continue
-            v = np.asarray(f(x_all, WO), np.float64)
+            v = _call_f(f, x_all, WO)
             out[:, o] = np.broadcast_to(v.reshape(res * res, sub * sub, -1).mean(1), (res * res, 3))
         if not np.all(np.isfinite(out)):
             raise ValueError("f: returned NaN or inf on the table grid")
@@ -309,6 +308,15 @@ class TabulatedBRDF:
 
 
 # ----------------------------------------------------------------------------- the closure
+def _call_f(f, wi, wo) -> np.ndarray:
+    """``f(wi, wo)`` as (N, 3) or (N, 1) floats; a result of another shape is a ValueError naming ``f``."""
+    v = np.asarray(f(wi, wo), np.float64)
+    n = len(wi)
+    if v.shape in ((n,), (n, 1), (n, 3)):
+        return v.reshape(n, -1)
+    raise ValueError(f"f: must return (N, 3) RGB (or (N,) grey) values for N = {n} direction pairs, got shape {v.shape}")
+
+
 def default_alpha(res: int, extent: float = 1.0) -> float:
     """GGX alpha of the closure: 1/16 of a cell's angular size (≈ π extent/(2 res) rad per cell; extent < 1:
     a zoomed half-vector grid), so that the lobe blur stays well inside a cell; floored at 2e-5 (Cycles needs
@@ -452,12 +460,25 @@ def _view_taps(tb: ClosureTables, wo):
     return np.stack([i0, i1], 1), np.stack([1 - f, f], 1), np.cos(phi), np.sin(phi)
 
 
+def _uniforms(u, n: int) -> np.ndarray:
+    """``u`` as (n, 4) finite numbers in [0, 1] (one row per view, or one row for all), else ValueError."""
+    try:
+        u = np.atleast_2d(np.asarray(u, np.float64))
+    except (TypeError, ValueError):
+        raise ValueError(f"u: expected (N, 4) uniform numbers in [0, 1], got {u!r}") from None
+    if u.ndim != 2 or u.shape[1] != 4 or u.shape[0] not in (1, n):
+        raise ValueError(f"u: expected shape ({n}, 4) (one row per view), got {u.shape}")
+    if not np.all(np.isfinite(u)) or u.min(initial=0.0) < 0.0 or u.max(initial=0.0) > 1.0:
+        raise ValueError("u: uniform numbers must be finite and in [0, 1]")
+    return np.broadcast_to(np.minimum(u, np.nextafter(1.0, 0.0)), (n, 4))
+
+
 def sample(tb: ClosureTables, wo, u):
     """Numpy twin of the shader: views ``wo`` (N, 3) (surface frame, z > 0), uniform numbers ``u``
     (N, 4) = (h_o, h_k, h_s, h_t).  Returns (ωi target (N, 3), micro-normal m (N, 3),
     closure weight W (N, 3) = f cos θi / (p A), p (N,) the density of step 3 per steradian)."""
     wo = _unit_rows("wo", wo)
-    u = np.atleast_2d(np.asarray(u, np.float64))
+    u = _uniforms(u, len(wo))
     res, F, cdf = tb.res, tb.F.astype(np.float64), tb.cdf.astype(np.float64)
     D, cell, N = res * res, 2.0 / res, len(wo)
     # 1. ωo node, picked with probability = its interpolation weight (cumulative weights vs h_o)

@@ -93,3 +93,65 @@ def test_invalid():
         random_scratches(3, orientation="radial")
     with pytest.raises(ValueError, match="radius"):
         build_grid(random_scratches(3)).query(random_scratches(3), np.zeros((1, 2)), -1.0)
+
+
+def test_grid_build_in_chunks_is_identical(monkeypatch):
+    """Chunked candidate tests (GRID_CHUNK candidates, GRID_BLOCK segments at a time) give the same index as one pass."""
+    from scratch_materials.precompute.iridescence import scratch_set
+    S = random_scratches(400, length_range=(0.0, 0.6), seed=3)
+    one = build_grid(S, cell_size=0.02)
+    monkeypatch.setattr(scratch_set, "GRID_CHUNK", 37)
+    monkeypatch.setattr(scratch_set, "GRID_BLOCK", 29)
+    many = build_grid(S, cell_size=0.02)
+    assert np.array_equal(one.cell_start, many.cell_start) and np.array_equal(one.cell_items, many.cell_items)
+
+
+def test_grid_size_bounded(monkeypatch):
+    """Issue #14 (memory bounded for every accepted input): an automatic cell size coarsens until the index fits
+    MAX_GRID_ITEMS (queries stay exact); an explicit one that cannot fit is refused up front naming cell_size."""
+    from scratch_materials.precompute.iridescence import scratch_set
+    S = random_scratches(2000, length_range=(0.2, 0.6), seed=5)
+    free = build_grid(S)
+    monkeypatch.setattr(scratch_set, "MAX_GRID_ITEMS", free.cell_items.size // 4)
+    g = build_grid(S)
+    assert g.cell_size > free.cell_size and g.cell_items.size <= scratch_set.MAX_GRID_ITEMS
+    q = np.random.default_rng(1).random((200, 2))
+    assert _same(g.query(S, q, 0.01), brute_force_query(S, q, 0.01))
+    with pytest.raises(ValueError, match="cell_size"):
+        build_grid(S, cell_size=free.cell_size)
+    monkeypatch.setattr(scratch_set, "MAX_GRID_ITEMS", 1000)
+    with pytest.raises(ValueError, match="scratches"):
+        build_grid(S)
+
+
+def test_grid_memory_many_long_scratches():
+    """100,000 scratches 0.1-0.3 UV long: the old build made every (segment, bounding-box cell) candidate at once
+    (~1e8 pairs, several GB); now the candidates stream in chunks: peak Python allocations < 300 MiB."""
+    import tracemalloc
+    S = random_scratches(100_000, length_range=(0.1, 0.3), seed=11)
+    tracemalloc.start()
+    try:
+        g = build_grid(S)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 300 * 2**20, f"peak {peak / 2**20:.0f} MiB"
+    q = np.random.default_rng(2).random((100, 2))
+    assert _same(g.query(S, q, 0.002), brute_force_query(S, q, 0.002))
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 80), seed=st.integers(0, 10_000), cell=st.floats(0.003, 0.5), lmax=st.floats(0.0, 1.0),
+       orient=st.sampled_from(["uniform", "fixed", "von_mises"]), angle=st.floats(-4.0, 4.0))
+def test_grid_corridor_equals_whole_box(n, seed, cell, lmax, orient, angle):
+    """The build tests only a corridor of cells along each segment; the index equals the one that tests every cell
+    of the segment's bounding box (the previous build) exactly."""
+    from scratch_materials.precompute.iridescence import scratch_set
+    S = random_scratches(n, length_range=(0.0, lmax), orientation=orient, angle=angle, seed=seed)
+    g = build_grid(S, cell_size=cell)
+    blo, bhi, _ = g._cell_range(np.minimum(S.p0, S.p1), np.maximum(S.p0, S.p1))
+    si, cx, cy = scratch_set.cell_pairs(blo, bhi)
+    centre = g.origin + (np.stack([cx, cy], axis=1) + 0.5) * g.cell_size
+    keep = point_segment_distance(centre, S.p0[si], S.p1[si]) <= 0.5 * np.sqrt(2.0) * g.cell_size * (1.0 + 1e-9)
+    start, items = scratch_set.csr_from_pairs((cy * g.nx + cx)[keep], si[keep], g.nx * g.ny)
+    assert np.array_equal(start, g.cell_start) and np.array_equal(items, g.cell_items)

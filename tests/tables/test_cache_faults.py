@@ -429,3 +429,18 @@ def test_bake_tables_default_folder_falls_back_and_a_late_write_failure_keeps_th
     with pytest.warns(cache.CacheWarning, match="No space left"):
         brdf2, _, info2 = bake.bake_tables(tile.vertices, tile.faces, tile.face_material, 1.0, mats, n_lobes=1, **small)
     assert info2["exr"] is None and np.array_equal(brdf2.table, brdf.table)
+
+
+def test_write_exr_to_a_folder_or_an_unwritable_place_names_the_path(tmp_path):
+    """Issue #14: ``ScratchBRDF.save`` / ``write_exr`` onto a folder wrote its temp file into the folder's parent and
+    died with IsADirectoryError about the temp file; a missing or impossible parent named only the temp file.
+    Now: a folder is a ValueError naming ``path``; an OSError names the user's path; nothing is left behind."""
+    a = {"x": np.ones((2, 2), np.float32)}
+    (tmp_path / "sub").mkdir()
+    with pytest.raises(ValueError, match="path"):
+        exr_io.write_exr(tmp_path / "sub", a)
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(OSError, match="file/x.exr"):
+        exr_io.write_exr(blocker / "x.exr", a)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "sub"] and not any((tmp_path / "sub").iterdir())

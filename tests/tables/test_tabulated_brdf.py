@@ -205,3 +205,20 @@ def test_errors():
         B.eval(np.ones((2, 3)), np.full((2, 3), np.inf))
     with pytest.raises(ValueError, match="f"):
         tb.TabulatedBRDF.from_function(lambda wi, wo: np.full((len(wi), 3), np.nan), 4)
+
+
+@pytest.mark.parametrize("u", [[[0.5, 0.5, np.nan, 0.5]], [[0.5, 2.0, 0.5, 0.5]], [[-0.1, 0.5, 0.5, 0.5]], [0.5],
+                               np.full((3, 4), 0.5), "x"])
+def test_sample_rejects_bad_uniforms(u):
+    """Issue #14: ``sample`` with NaN, out-of-range or misshapen uniforms raised IndexError deep in the bin pick;
+    now a ValueError naming ``u``."""
+    brdf = tb.TabulatedBRDF.from_function(lambda wi, wo: np.ones(wi.shape[:-1] + (3,)) / np.pi, 6)
+    with pytest.raises(ValueError, match="^u: "):
+        tb.sample(tb.closure_tables(brdf), np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 0.95]]), u)
+
+
+@pytest.mark.parametrize("half", [False, True])
+def test_from_function_wrong_shape_names_f(half):
+    """Issue #14: a BRDF function returning the wrong shape failed with numpy's reshape message."""
+    with pytest.raises(ValueError, match="^f: "):
+        tb.TabulatedBRDF.from_function(lambda wi, wo: np.ones(5), 6, half=half, extent=0.5 if half else None)
