@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .model import RGB_WAVELENGTHS_UM as _RGB
-from .scratch_set import cell_pairs, csr_from_pairs
+from .scratch_set import GRID_BLOCK, GRID_CHUNK, _corridor_bound, corridor_cells, csr_from_pairs
 
 SIGMA_UM = 60.0
 RGB_WAVELENGTHS_UM = tuple(float(x) for x in _RGB)
@@ -159,15 +159,24 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: f
     while nx * ny > max_cells:
         cell *= 1.1
         nx, ny = (np.floor(ext / cell).astype(np.int64) + 1).tolist()
-    blo = np.floor((np.minimum(p0, p1) - reach_uv - lo) / cell).astype(np.int64)
-    bhi = np.floor((np.maximum(p0, p1) + reach_uv - lo) / cell).astype(np.int64)
-    blo = np.clip(blo, 0, [nx - 1, ny - 1])
-    bhi = np.clip(bhi, 0, [nx - 1, ny - 1])
-    sid, cx, cy = cell_pairs(blo, bhi)
-    corner = lo + np.stack([cx, cy], 1) * cell
-    dist = segment_box_distance(p0[sid], p1[sid], corner, corner + cell)
-    keep = dist <= reach_uv * (1 + 1e-9) + 1e-12
-    start, items = csr_from_pairs((cy * nx + cx)[keep], sid[keep], nx * ny)
+    R = reach_uv / cell * (1 + 1e-6) + 1e-9                     # the reach in cells, for the candidate corridor
+    cells, items = [], []
+    for s0 in range(0, M, GRID_BLOCK):        # bounded memory: blocks of segments, chunks of ~GRID_CHUNK candidates
+        q0, q1 = p0[s0:s0 + GRID_BLOCK], p1[s0:s0 + GRID_BLOCK]
+        blo = np.clip(np.floor((np.minimum(q0, q1) - reach_uv - lo) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
+        bhi = np.clip(np.floor((np.maximum(q0, q1) + reach_uv - lo) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
+        cum = np.cumsum(_corridor_bound(q0, q1, blo, bhi, 1.0 + 2.0 * R))
+        a = 0
+        while a < len(q0):
+            b = max(int(np.searchsorted(cum, (cum[a - 1] if a else 0) + GRID_CHUNK, side="right")), a + 1)
+            sid, cx, cy = corridor_cells((q0[a:b] - lo) / cell, (q1[a:b] - lo) / cell, blo[a:b], bhi[a:b], -R, 1.0 + R)
+            sid = sid + a
+            corner = lo + np.stack([cx, cy], 1) * cell
+            keep = segment_box_distance(q0[sid], q1[sid], corner, corner + cell) <= reach_uv * (1 + 1e-9) + 1e-12
+            cells.append((cy * nx + cx)[keep])
+            items.append(sid[keep] + s0)
+            a = b
+    start, items = csr_from_pairs(np.concatenate(cells), np.concatenate(items), nx * ny)
     return ReachGrid(lo, cell, nx, ny, start, items)
 
 
@@ -289,6 +298,14 @@ def candidate_weights(spec: LayerSpec, terms: dict, grid: "ReachGrid") -> np.nda
     return (1.0 - UNIFORM_MIX) * p + UNIFORM_MIX / n
 
 
+def _check_cell_load(n_cell, qbits: int) -> None:
+    """Every cell's segments must get >= 1 of its 2**qbits quanta with room to spare (<= 2**qbits / 4)."""
+    Q = 1 << qbits
+    if n_cell.size and n_cell.max() > Q // 4:
+        raise ValueError(f"scratches: {n_cell.max()} segments within reach of one grid cell (at most {Q // 4} "
+                         "with this many segments); use fewer segments or a smaller sigma_um")
+
+
 def quantize_cells(p, start, qbits: int) -> np.ndarray:
     """Integer quanta per item (≥ 1 each, exactly 2**qbits per non-empty cell, ∝ ``p`` otherwise), so the
     shader's probabilities are exact integers / 2**qbits (largest-remainder rounding per cell)."""
@@ -296,9 +313,7 @@ def quantize_cells(p, start, qbits: int) -> np.ndarray:
     n_cell = np.diff(start)
     if p.size == 0:
         return np.zeros(0, np.int64)
-    if n_cell.max() > Q // 4:
-        raise ValueError(f"scratches: {n_cell.max()} segments within reach of one grid cell (at most {Q // 4} "
-                         "with this many segments); use fewer segments or a smaller sigma_um")
+    _check_cell_load(n_cell, qbits)
     cid = np.repeat(np.arange(n_cell.size), n_cell)
     x = p * (Q - n_cell[cid])
     c = 1 + np.floor(x).astype(np.int64)
@@ -323,6 +338,7 @@ def shader_tables(spec: LayerSpec, cell_frac: float = CELL_FRAC) -> dict:
     grid = reach_grid(p0[idx], p1[idx], reach_uv, cell_frac=cell_frac)
     grid.items = idx[grid.items]
     qbits = 31 - max(1, int(np.ceil(np.log2(max(len(terms["L"]), 2)))))
+    _check_cell_load(np.diff(grid.start), qbits)          # before the per-item weights (memory ∝ items)
     q = quantize_cells(candidate_weights(spec, terms, grid), grid.start, qbits)
     cid = np.repeat(np.arange(grid.nx * grid.ny), np.diff(grid.start))
     end = np.cumsum(q) - np.concatenate([[0], np.cumsum(q)])[grid.start[cid]] - 1

@@ -298,20 +298,23 @@ def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells:
 _H = 0.5 * np.sqrt(2.0) * (1.0 + 1e-6)
 
 
-def _corridor_bound(p0, p1, blo, bhi) -> np.ndarray:
-    """Upper bound of ``corridor_cells``' candidates per segment: major-axis columns x at most 5 rows."""
+def _corridor_bound(p0, p1, blo, bhi, width: float = 2.0 * _H) -> np.ndarray:
+    """Upper bound of ``corridor_cells``' candidates per segment: major-axis columns x at most
+    2 width + 2 rows (slope <= 1)."""
     span = bhi - blo + 1
     major = np.where(np.abs(p1 - p0)[:, 0] >= np.abs(p1 - p0)[:, 1], 0, 1)
     cols = np.take_along_axis(span, major[:, None], 1)[:, 0]
     rows = np.take_along_axis(span, 1 - major[:, None], 1)[:, 0]
-    return cols * np.minimum(rows, 5)
+    return cols * np.minimum(rows, int(np.ceil(2.0 * width)) + 2)
 
 
-def corridor_cells(g0, g1, blo, bhi):
-    """Candidate cells (item, cx, cy) of segments ``g0 -> g1`` (grid coordinates, cell units): inside each
-    segment's cell box ``blo..bhi``, only the cells whose centre can lie within half a cell diagonal of the
-    segment -- per column of the major axis, the rows the segment spans over that column +- the half diagonal
-    (<= 5 rows, slope <= 1), instead of the whole box (a diagonal segment across n cells: ~5 n, not n²)."""
+def corridor_cells(g0, g1, blo, bhi, a: float = 0.5 - _H, b: float = 0.5 + _H):
+    """Candidate cells (item, cx, cy) of segments ``g0 -> g1`` (grid coordinates, cell units) inside each segment's
+    cell box ``blo..bhi``: cell (c, r) is a candidate if the segment has a point in [c + a, c + b] x [r + a, r + b]
+    (the region a kept cell's test can reach: default, a centre within half a cell diagonal (``build_grid``);
+    a = -R, b = 1 + R: a cell box within R cells (``layer.reach_grid``)).  Per column of the segment's major
+    axis, the rows its minor coordinate spans over that column's region (<= 2 (b - a) + 2 rows, slope <= 1),
+    instead of the whole box (a diagonal segment across n cells: O(n), not n²)."""
     d = g1 - g0
     major = np.where(np.abs(d[:, 0]) >= np.abs(d[:, 1]), 0, 1)
     ar = np.arange(len(g0))
@@ -325,12 +328,12 @@ def corridor_cells(g0, g1, blo, bhi):
     item = np.repeat(ar, n_col)                                            # (segment, column) pairs
     c = c_lo[item] + np.arange(item.size) - np.repeat(np.cumsum(n_col) - n_col, n_col)
     umin, umax = np.minimum(u0, u1)[item], np.maximum(u0, u1)[item]
-    ua = np.maximum(c + 0.5 - _H, umin)
-    ub = np.minimum(c + 0.5 + _H, umax)
+    ua = np.maximum(c + a, umin)
+    ub = np.minimum(c + b, umax)
     va = v0[item] + (ua - u0[item]) * slope[item]
     vb = v0[item] + (ub - u0[item]) * slope[item]
-    r_lo = np.maximum(np.ceil(np.minimum(va, vb) - _H - 0.5), r_box_lo[item]).astype(np.int64)
-    r_hi = np.minimum(np.floor(np.maximum(va, vb) + _H - 0.5), r_box_hi[item]).astype(np.int64)
+    r_lo = np.maximum(np.ceil(np.minimum(va, vb) - b), r_box_lo[item]).astype(np.int64)
+    r_hi = np.minimum(np.floor(np.maximum(va, vb) - a), r_box_hi[item]).astype(np.int64)
     n_row = np.where(ua <= ub, np.maximum(r_hi - r_lo + 1, 0), 0)
     k = np.repeat(np.arange(item.size), n_row)                             # (segment, column, row) triples
     r = r_lo[k] + np.arange(k.size) - np.repeat(np.cumsum(n_row) - n_row, n_row)

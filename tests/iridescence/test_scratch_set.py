@@ -155,3 +155,44 @@ def test_grid_corridor_equals_whole_box(n, seed, cell, lmax, orient, angle):
     keep = point_segment_distance(centre, S.p0[si], S.p1[si]) <= 0.5 * np.sqrt(2.0) * g.cell_size * (1.0 + 1e-9)
     start, items = scratch_set.csr_from_pairs((cy * g.nx + cx)[keep], si[keep], g.nx * g.ny)
     assert np.array_equal(start, g.cell_start) and np.array_equal(items, g.cell_items)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 60), seed=st.integers(0, 10_000), reach=st.floats(0.001, 0.2), frac=st.floats(0.3, 3.0),
+       lmax=st.floats(0.0, 1.0), orient=st.sampled_from(["uniform", "fixed"]), angle=st.floats(-4.0, 4.0))
+def test_reach_grid_corridor_equals_whole_box(n, seed, reach, frac, lmax, orient, angle):
+    """The iridescent layer's reach grid tests a corridor of cells along each segment; it equals the grid that
+    tests every cell of the reach-expanded bounding box (the previous build) exactly."""
+    from scratch_materials.precompute.iridescence import layer, scratch_set
+    S = random_scratches(n, length_range=(0.0, lmax), orientation=orient, angle=angle, seed=seed)
+    g = layer.reach_grid(S.p0, S.p1, reach, cell_frac=frac)
+    blo = np.clip(np.floor((np.minimum(S.p0, S.p1) - reach - g.origin) / g.cell).astype(np.int64), 0, [g.nx - 1, g.ny - 1])
+    bhi = np.clip(np.floor((np.maximum(S.p0, S.p1) + reach - g.origin) / g.cell).astype(np.int64), 0, [g.nx - 1, g.ny - 1])
+    si, cx, cy = scratch_set.cell_pairs(blo, bhi)
+    corner = g.origin + np.stack([cx, cy], 1) * g.cell
+    keep = layer.segment_box_distance(S.p0[si], S.p1[si], corner, corner + g.cell) <= reach * (1 + 1e-9) + 1e-12
+    start, items = scratch_set.csr_from_pairs((cy * g.nx + cx)[keep], si[keep], g.nx * g.ny)
+    assert np.array_equal(start, g.start) and np.array_equal(items, g.items)
+
+
+def test_reach_grid_in_chunks_is_identical(monkeypatch):
+    from scratch_materials.precompute.iridescence import layer
+    S = random_scratches(300, length_range=(0.0, 0.6), seed=4)
+    one = layer.reach_grid(S.p0, S.p1, 0.01)
+    monkeypatch.setattr(layer, "GRID_CHUNK", 41)
+    monkeypatch.setattr(layer, "GRID_BLOCK", 23)
+    many = layer.reach_grid(S.p0, S.p1, 0.01)
+    assert np.array_equal(one.start, many.start) and np.array_equal(one.items, many.items)
+
+
+def test_overfull_reach_cell_refused_before_the_per_item_weights(monkeypatch):
+    """Issue #14 (memory): 200,000 scratches (the panel's maximum count) built every per-(cell, segment) weight
+    (1.1 GB) before refusing an over-full cell; the check now runs on the grid's cell counts first."""
+    from scratch_materials.precompute.iridescence import layer
+
+    def boom(*a, **k):
+        raise AssertionError("candidate_weights ran before the cell-load check")
+    monkeypatch.setattr(layer, "candidate_weights", boom)
+    S = random_scratches(40_000, length_range=(0.3, 0.6), seed=2)
+    with pytest.raises(ValueError, match="^scratches: .* within reach of one grid cell"):
+        layer.shader_tables(layer.LayerSpec(scratches=S, sigma_um=1000.0))
