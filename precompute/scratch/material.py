@@ -8,6 +8,8 @@ data of the chosen lobe shape, and the table lobes the node-group (SVM) twin ren
 """
 from __future__ import annotations
 
+import dataclasses
+import difflib
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,10 +54,13 @@ def _as_layers(layers):
     if layers is None or isinstance(layers, layers_mod.LayerParams):
         return layers
     if isinstance(layers, dict):
-        try:
-            return layers_mod.LayerParams(**layers)
-        except TypeError as exc:
-            raise ValueError(f"layers: {exc}") from None
+        accepted = [f.name for f in dataclasses.fields(layers_mod.LayerParams)]
+        for key in layers:
+            if key not in accepted:
+                close = difflib.get_close_matches(str(key), accepted, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ValueError(f"layers: unknown key {key!r}{hint}; accepted: {', '.join(accepted)}")
+        return layers_mod.LayerParams(**layers)
     if isinstance(layers, (int,)) and not isinstance(layers, bool):
         return layers_mod.LayerParams(n_layers=layers)
     raise ValueError(f"layers must be None (dense), an int (count), a dict or a LayerParams; got {layers!r}")
@@ -98,12 +103,15 @@ def _as_profile(profile):
 def _as_fresnel(fresnel):
     if fresnel is None or isinstance(fresnel, fresnel_mod.Fresnel):
         return fresnel
-    if isinstance(fresnel, str):
-        return fresnel_mod.conductor_preset(fresnel)
-    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 2 and fresnel[0] == "schlick":
-        return fresnel_mod.schlick(fresnel[1])
-    if isinstance(fresnel, (tuple, list)) and len(fresnel) == 3 and fresnel[0] == "conductor":
-        return fresnel_mod.conductor(fresnel[1], fresnel[2])
+    try:                             # the user's parameter is ``fresnel``: name it in the message
+        if isinstance(fresnel, str):
+            return fresnel_mod.conductor_preset(fresnel)
+        if isinstance(fresnel, (tuple, list)) and len(fresnel) == 2 and fresnel[0] == "schlick":
+            return fresnel_mod.schlick(fresnel[1])
+        if isinstance(fresnel, (tuple, list)) and len(fresnel) == 3 and fresnel[0] == "conductor":
+            return fresnel_mod.conductor(fresnel[1], fresnel[2])
+    except ValueError as exc:
+        raise ValueError(f"fresnel: {exc}") from None
     raise ValueError("fresnel must be None (lossless), a metal name, ('schlick', ior), ('conductor', n, k) "
                      f"or a precompute.fresnel model; got {fresnel!r}")
 
