@@ -9,6 +9,7 @@ Values round-trip bit-exactly for float32 (EXR ``FLOAT`` channels, lossless ZIP)
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 
@@ -74,7 +75,11 @@ def write_exr(path: str | os.PathLike, channels: dict[str, np.ndarray], meta: di
     except OSError as e:          # name the user's path, not the temp file or a parent
         raise OSError(e.errno, f"cannot write {path!r}: {e.strerror}") from e
     try:
-        OpenEXR.File(header, arrays).write(tmp)
+        try:
+            OpenEXR.File(header, arrays).write(tmp)
+        except RuntimeError as e:  # OpenEXR reports I/O failures (a full disk, a vanished folder) as RuntimeError
+            code = errno.ENOSPC if "No space left" in str(e) else errno.EIO
+            raise OSError(code, os.strerror(code) if code == errno.ENOSPC else files.one_line(e)) from e
         os.replace(tmp, path)
     except BaseException as e:
         try:

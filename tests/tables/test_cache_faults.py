@@ -5,6 +5,7 @@ Processes are real subprocesses (SIGKILL mid-write, two writers racing for one e
 faults run through ``fault_helpers.unprivileged`` so that they hold when the tests run as root."""
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -444,3 +445,32 @@ def test_write_exr_to_a_folder_or_an_unwritable_place_names_the_path(tmp_path):
     with pytest.raises(OSError, match="file/x.exr"):
         exr_io.write_exr(blocker / "x.exr", a)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "sub"] and not any((tmp_path / "sub").iterdir())
+
+
+def test_full_disk_while_writing_a_cache_entry_still_returns_the_result(cache_dir, monkeypatch):
+    """A full disk (found with a 200 kB tmpfs as the cache folder): OpenEXR reports the failed write as a
+    RuntimeError, which went through the cache and ``simulate(..., cache=True)`` after the whole computation.
+    Now it is an OSError naming the path (ENOSPC): the cache warns once, returns the result, leaves no file."""
+    real = exr_io._openexr()
+
+    class FullDisk:
+        def __init__(self, header, arrays):
+            pass
+
+        def write(self, path):
+            open(path, "wb").write(b"partial")
+            raise RuntimeError(f'Failed to write pixel data to image file "{path}". No space left on device.')
+
+    class Fake:
+        File = FullDisk
+        ZIP_COMPRESSION, scanlineimage = real.ZIP_COMPRESSION, real.scanlineimage
+
+    monkeypatch.setattr(exr_io, "_openexr", lambda: Fake)
+    with pytest.warns(cache.CacheWarning, match="No space left on device"):
+        out = cache.cached_arrays("fault", "1", {"x": 1}, lambda: {"a": np.ones((2, 2))})
+    assert np.array_equal(out["a"], np.ones((2, 2)))
+    assert not [p for p in os.listdir(cache_dir) if not p.startswith(".")] and not [
+        p for p in os.listdir(cache_dir) if p.startswith(files.TMP_PREFIX)]
+    with pytest.raises(OSError) as exc:
+        exr_io.write_exr(os.path.join(cache_dir, "y.exr"), {"a": np.ones((2, 2))})
+    assert exc.value.errno == errno.ENOSPC and "y.exr" in str(exc.value)
