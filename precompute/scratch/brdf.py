@@ -374,10 +374,11 @@ def _root(c):
     return _wrap_half(np.arctan2(-c[..., 0], c[..., 1]))
 
 
-def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces):
+def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces, scan_tail=False):
     """Trace incident directions ``phi``; per-record arrays (node angle, pid, bounces,
     phi_o, weights [n, 1 + S C], bounds [n, 2, 2]) and the per-node lost fraction."""
-    rec = trace_exact(verts, phi, fresnel, cos_scales, max_bounces=max_bounces, min_energy=MIN_ENERGY)
+    rec = trace_exact(verts, phi, fresnel, cos_scales, max_bounces=max_bounces, min_energy=MIN_ENERGY,
+                      scan_tail=scan_tail)
     W = rec.weight[:, None]
     if rec.fresnel is not None:
         W = np.concatenate([W, rec.fresnel.reshape(rec.fresnel.shape[0], int(np.prod(rec.fresnel.shape[1:])))], 1)
@@ -687,12 +688,19 @@ def _integrate_wide(M, span, i_lo, ncol, target, gb, pa, pb, sgn, c, A0, B0, has
     acc = np.empty((nW, ncls, M, ncol))
     acc[0] = (np.bincount(idx_r, (Ibp * scr).ravel(), minlength=n)
               + np.bincount(idx_x, Ibxp * scx, minlength=n)).reshape(ncls, M, ncol)
-    for comp in range(1, nW):  # Fresnel components: integral of (al + be phi) width
-        a, b = alpha[:, comp - 1], slope[:, comp - 1]
-        vr = np.maximum(a[R, None] * Ib + b[R, None] * Il, 0.0) * scr
-        vx = np.maximum(a[g] * Ibx + b[g] * Ilx, 0.0) * scx
-        acc[comp] = (np.bincount(idx_r, vr.ravel(), minlength=n)
-                     + np.bincount(idx_x, vx, minlength=n)).reshape(ncls, M, ncol)
+    if nW > 1:  # Fresnel components: integral of (al + be phi) width, >= 0 (F >= 0 linear, width >= 0)
+        Ib *= scr
+        Il *= scr
+        Ibx, Ilx = Ibx * scx, Ilx * scx
+        ar, br, ax, bx = alpha[R], slope[R], alpha[g], slope[g]
+        v, t = np.empty(Ib.shape), np.empty(Ib.shape)
+        for comp in range(1, nW):  # a few components (Fresnel slices x channels)
+            np.multiply(ar[:, comp - 1, None], Ib, out=v)
+            np.multiply(br[:, comp - 1, None], Il, out=t)
+            v += t
+            acc[comp] = (np.bincount(idx_r, v.ravel(), minlength=n)
+                         + np.bincount(idx_x, ax[:, comp - 1] * Ibx + bx[:, comp - 1] * Ilx,
+                                       minlength=n)).reshape(ncls, M, ncol)
     return acc, i_lo
 
 
@@ -729,7 +737,9 @@ def _exact_tables(profile: Profile, M: int, K: int, fresnel, cos_scales, split: 
 
     def part(ab):
         a, b = ab  # sub-bins a .. b-1, nodes a .. b
-        recs, lost = _trace_nodes(verts, nodes[a:b + 1], fresnel, cos_scales, max_bounces)
+        # the fast method's passes finish their visibility searches by a scan (same records, other order;
+        # the exact method keeps its order: its tables stay the same bit for bit)
+        recs, lost = _trace_nodes(verts, nodes[a:b + 1], fresnel, cos_scales, max_bounces, scan_tail=coarse)
         fine = _integrate(recs, edges[a:b + 1], nodes[a:b + 1], lost, M, split)
         if not coarse:
             return fine, None, lost
