@@ -49,6 +49,16 @@ def test_fast_table_within_its_bound_of_the_exact_one(case, tol):
     assert abs(fast.lost - _exact(case).lost) < 1e-6
 
 
+def test_fast_table_within_its_bound_at_128():
+    """M = 128: the fast method also takes rows 2-3 at each horizon from reciprocity (``_FAST_RECIPROCITY``)."""
+    case = _CASES[0]
+    prof = _noisy(*case)
+    fast = brdf.simulate(prof, 128, FR, method="fast", max_seconds=np.inf)
+    assert fast.meta["fast"]["stride"] >= 1
+    exact = brdf.simulate(prof, 128, FR, max_seconds=np.inf)
+    assert _err(fast, exact) <= 0.05
+
+
 def test_a_broken_error_estimate_violates_the_bound(monkeypatch):
     """With the estimate forced to 0 the coarsest stride is always taken: on these profiles its error exceeds
     a 2 % bound that the real estimate keeps (it refines instead)."""
