@@ -25,7 +25,10 @@ the fast method is the exact one): time, the stride it chose and its error estim
 relative L1 and relative max of rho_m and rho0 (channels summed), and the moments of each phi_i column
 (cosine-weighted mean and standard deviation of phi_o, largest difference over the columns, degrees).
 
-    python -m bench scratch_tracer_scale --fast [--res 256] [--reps 2] [--max-table-error 0.05]
+    python -m bench scratch_tracer_scale --fast [--res 256] [--reps 2] [--max-table-error 0.05] [--baseline-rev REV]
+
+With ``--baseline-rev`` the fast method of revision REV runs too, interleaved exact / fast (REV) / fast: its CPU and
+wall medians, and the ratio of its CPU time to this tree's.
 """
 from __future__ import annotations
 
@@ -152,15 +155,23 @@ def _fast_main(a) -> int:
     rows = []
     names = a.profiles if a.profiles_given else ["measured-4096", "smooth-4096", "quartic-100k", "vgroove"]
     with tempfile.TemporaryDirectory() as tmp:
+        base = a.baseline_dir
+        if a.baseline_rev and not base:
+            base = os.path.join(tmp, "baseline")
+            os.makedirs(base)
+            arc = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline_rev], capture_output=True, check=True)
+            subprocess.run(["tar", "-x", "-C", base], input=arc.stdout, check=True)
         for M in a.res:
             for name in names:
-                ex, fa = [], []
-                for _ in range(max(1, a.reps)):  # interleaved: both see the same machine load
+                ex, fa, fb = [], [], []
+                for _ in range(max(1, a.reps)):  # interleaved: all see the same machine load
                     ex.append(_case(ROOT, name, M, "auto", tmp, "exact"))
+                    if base is not None:
+                        fb.append(_case(base, name, M, "auto", tmp, "base", "fast", a.max_table_error))
                     fa.append(_case(ROOT, name, M, "auto", tmp, "fast", "fast", a.max_table_error))
-                bad = [r for r in ex + fa if "error" in r]
+                bad = [r for r in ex + fa + fb if "error" in r]
                 if bad:
-                    rows.append([name, M] + [""] * 14 + [bad[0]["error"][:80]])
+                    rows.append([name, M] + [""] * 17 + [bad[0]["error"][:80]])
                     continue
                 med = lambda rs, k: statistics.median(x[k] for x in rs)  # noqa: E731
                 f = fa[-1]
@@ -174,7 +185,9 @@ def _fast_main(a) -> int:
                              f"{med(ex, 'cpu') / med(fa, 'cpu'):.1f}", info.get("stride", ""),
                              f"{info.get('table_error_estimate', float('nan')):.4f}",
                              f"{err['l1m']:.4f} / {err['l10']:.4f}", f"{err['maxm']:.3f} / {err['max0']:.3f}",
-                             f"{err['dmean']:.3f} / {err['dstd']:.3f}", ""])
+                             f"{err['dmean']:.3f} / {err['dstd']:.3f}"]
+                            + ([f"{med(fb, 'wall'):.2f}", f"{med(fb, 'cpu'):.2f}", f"{med(fb, 'cpu') / med(fa, 'cpu'):.2f}"]
+                               if fb else ["", "", ""]) + [""])
                 print(rows[-1], flush=True)
     load1 = os.getloadavg()
     notes = (f"Medians of {a.reps} run(s) per method, each a fresh subprocess (2 threads), exact and fast interleaved. "
@@ -186,11 +199,14 @@ def _fast_main(a) -> int:
              "traces at half the directions). Errors of the fast tables against "
              "the exact ones: relative L1 and relative max (|diff| max / ref max) of rho_m / rho0 (channels summed); "
              "moments = largest difference over the lit phi_i columns of the cosine-weighted mean / standard "
-             "deviation of phi_o (degrees). 'est s' = brdf.estimate_cost.")
+             "deviation of phi_o (degrees). 'est s' = brdf.estimate_cost."
+             + (f" 'base fast': the fast method of revision {a.baseline_rev}, interleaved (exact / base fast / fast); "
+                "'fast speed-up' = its CPU time / this tree's." if a.baseline_rev else ""))
     report("scratch_tracer_fast" + (a.tag if a.tag is not None else "_" + "_".join(str(m) for m in a.res)),
            ["profile", "M", "traced segments", "exact wall s", "exact CPU s", "exact est s", "fast wall s",
             "fast CPU s", "fast est s", "fast peak MiB", "CPU speed-up", "stride", "estimate",
-            "rel L1 rho_m / rho0", "rel max rho_m / rho0", "moments dmean / dstd (deg)", "note"], rows, notes)
+            "rel L1 rho_m / rho0", "rel max rho_m / rho0", "moments dmean / dstd (deg)", "base fast wall s",
+            "base fast CPU s", "fast speed-up", "note"], rows, notes)
     return 0
 
 

@@ -37,12 +37,17 @@ BYTES_PER_RECORD_COMPONENT = 64
 #: -- an upper value on an idle machine, so ``max_seconds`` refuses rather than lets a long run through
 SECONDS_PER_RECORD = 6.5e-6
 #: the fast method (``brdf.simulate(method="fast")``): CPU time per exit record relative to the exact method's
-#: (each record is integrated over sub-bins several phi_i bins wide, and twice: the error estimate)
-FAST_RECORD_FACTOR = 2.0
+#: (each record is integrated over sub-bins several phi_i bins wide, and twice: the error estimate).  Measured
+#: (measured-4096, M = 256, load 15): 10.6 us per record against the exact method's ~13 (0.8x; it was 1.35x
+#: before the wide sub-bins' regular cuts, ``brdf._integrate_wide``); 1.0 keeps an upper value
+FAST_RECORD_FACTOR = 1.0
 #: and its working bytes per record grow with the sub-bin width (a path is cut at every bin edge it crosses):
-#: tracemalloc peaks of the integration 1.8 / 3.1 / 5.0 kB per record at stride 1 / 2 / 4 (measured-4096,
-#: M = 256), so ``record_bytes * (1 + FAST_BYTES_PER_STRIDE (stride - 1))`` keeps the exact method's margin
-FAST_BYTES_PER_STRIDE = 0.6
+#: tracemalloc peaks of the integration 1.8 / 1.9 / 2.5 / 3.6 kB per record at stride 1 / 2 / 4 / 8
+#: (measured-4096, M = 256; 1.8 / 3.1 / 5.3 / 9.4 before ``brdf._integrate_wide``); a whole fast part (trace,
+#: integration and error-estimate integration, 12 middle directions) peaks at 2.0 / 2.6 kB per record at stride
+#: 2 / 4, so ``record_bytes * (1 + FAST_BYTES_PER_STRIDE (stride - 1))`` (3.7 / 4.9 kB with 7 components) keeps
+#: the exact method's margin
+FAST_BYTES_PER_STRIDE = 0.2
 #: two threads on separate parts gain ~1.6x (the tracer is memory-bound)
 THREAD_SPEEDUP = {1: 1.0, 2: 1.6}
 #: Monte Carlo: bytes per ray in flight and CPU seconds per ray-segment intersection test

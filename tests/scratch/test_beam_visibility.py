@@ -81,16 +81,22 @@ PROFILES = {
 }
 
 
-@pytest.mark.parametrize("method", ["hierarchy", "scan"])
+@pytest.mark.parametrize("method", ["hierarchy", "scan", "hierarchy+tail", "tail-only"])
 @pytest.mark.parametrize("name", sorted(PROFILES))
 def test_visibility_equals_brute_force(name, method, monkeypatch):
     """Both visibility methods (the hierarchy for profiles of more than ``_HIERARCHY_MIN_SEGMENTS``
-    segments, the bucket scan for smaller ones; each forced here on every profile) give brute force's records."""
+    segments, the bucket scan for smaller ones; each forced here on every profile) give brute force's records;
+    so does the hierarchy whose last searching beams finish by one scan (``scan_tail``: from 3 beams on, or
+    from the start)."""
     verts = PROFILES[name].periodic_vertices()
     phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
     F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
-    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0 if method == "hierarchy" else 10**9)
-    fast = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5)))
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 10**9 if method == "scan" else 0)
+    tail = "tail" in method
+    if tail:
+        P = verts.shape[0] - 1
+        monkeypatch.setattr(beam, "_TAIL_ELEMS", 3 * P if method == "hierarchy+tail" else 10**9)
+    fast = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5), scan_tail=tail))
     monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0)
     monkeypatch.setattr(beam, "_visibility", brute_visibility)
     ref = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5)))

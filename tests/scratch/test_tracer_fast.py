@@ -49,6 +49,18 @@ def test_fast_table_within_its_bound_of_the_exact_one(case, tol):
     assert abs(fast.lost - _exact(case).lost) < 1e-6
 
 
+def test_fast_table_within_its_bound_at_128(monkeypatch):
+    """M = 128 (strides 4, 2 and 1 tried; at M = 256 the fast method also takes rows 2-3 at each horizon from
+    reciprocity, ``_FAST_RECIPROCITY``: forced here at 128)."""
+    monkeypatch.setattr(brdf, "_FAST_RECIPROCITY", 32)
+    case = _CASES[0]
+    prof = _noisy(*case)
+    fast = brdf.simulate(prof, 128, FR, method="fast", max_seconds=np.inf)
+    assert fast.meta["fast"]["stride"] >= 1
+    exact = brdf.simulate(prof, 128, FR, max_seconds=np.inf)
+    assert _err(fast, exact) <= 0.05
+
+
 def test_a_broken_error_estimate_violates_the_bound(monkeypatch):
     """With the estimate forced to 0 the coarsest stride is always taken: on these profiles its error exceeds
     a 2 % bound that the real estimate keeps (it refines instead)."""
@@ -150,3 +162,57 @@ def test_fast_fuzz_finite_or_named_error(seed, amp, corr, M, tol):
         return
     assert np.all(np.isfinite(b.rho_m)) and np.all(b.rho_m >= 0)
     assert np.all(b.albedo() <= 1.0 + 0.02)
+
+
+# ---- the wide-sub-bin integration (``brdf._integrate_wide``) against the exact method's integration ----
+def _wide_vs_narrow(prof, M, stride):
+    """rho_m of the same paths integrated across wide sub-bins (one traced node per ``stride`` bins) and across
+    one-bin sub-bins (a traced node at every bin edge: ``_integrate``'s per-bin pieces)."""
+    wide, _ = brdf._exact_tables(prof, M, 1, None, (), False, 64, 1, stride=stride)
+    narrow, _ = brdf._exact_tables(prof, M, 1, None, (), False, 64, 1)
+    return float(np.abs(wide - narrow).max() / np.abs(narrow).max())
+
+
+@pytest.mark.parametrize("stride", [4, 2])
+def test_wide_sub_bins_integrate_like_narrow_ones(stride):
+    """70-degree V-groove, no Fresnel: every exit path keeps its bounding vertices or changes them once per wide
+    sub-bin, so the flux model is the same whether a path is followed across 1 or ``stride`` bins: the wide
+    integration (regular cuts, antiderivative differences) equals the per-bin one to rounding."""
+    assert _wide_vs_narrow(profiles.v_groove(70.0), 64, stride) < 1e-10
+
+
+def test_wide_sub_bins_need_the_phi_o_cuts(monkeypatch):
+    """Without the cuts where phi_o crosses its bin edges (a piece's whole flux lands in one phi_o bin) the
+    same comparison fails by far."""
+    def no_phi_o_cuts(pa, lo, hi, sgn, c, M, span):  # the phi_i bin edges only (each twice: same shape)
+        h = np.pi / M
+        u = -0.5 * np.pi + (np.floor((pa + 0.5 * np.pi) / h) + 1.0) * h
+        x = np.concatenate([lo[:, None], u[:, None] + (np.arange(2 * span) // 2) * h, hi[:, None]], 1)
+        return np.clip(x, lo[:, None], hi[:, None])
+
+    monkeypatch.setattr(brdf, "_wide_breakpoints", no_phi_o_cuts)
+    assert _wide_vs_narrow(profiles.v_groove(70.0), 64, 4) > 1e-2
+
+
+def test_wide_breakpoints_are_every_bin_edge_crossing():
+    """``_wide_breakpoints`` (no sort: two interleaved regular grids) against a brute-force sorted list of the
+    phi_i bin edges and the phi_o bin-edge crossings inside each sub-bin (``[lo, hi]``; horizon clipping aside)."""
+    rng = np.random.default_rng(3)
+    M, span, n = 64, 4, 400
+    h = np.pi / M
+    pa = -0.5 * np.pi + rng.integers(0, M - span, n) * h + rng.uniform(0, 1, n) * h * (rng.uniform(size=n) < 0.3)
+    width = rng.uniform(0.05, 1.0, n) * span * h
+    pb = pa + width
+    sgn = np.where(rng.uniform(size=n) < 0.5, 1.0, -1.0)
+    c = rng.uniform(-1.0, 1.0, n)
+    lo = pa + rng.uniform(0, 0.3, n) * width
+    hi = pb - rng.uniform(0, 0.3, n) * width
+    x = brdf._wide_breakpoints(pa, lo, hi, sgn, c, M, span)
+    assert x.shape == (n, 2 * span + 2)
+    assert np.all(np.diff(x, axis=1) >= 0.0)
+    E = -0.5 * np.pi + np.arange(-M, 2 * M + 1) * h  # the grid continued past the horizon: cuts there are harmless
+    for r in range(n):
+        want = [lo[r], hi[r]] + [e for e in E if lo[r] < e < hi[r]]
+        want += [p for p in sgn[r] * (E - c[r]) if lo[r] < p < hi[r]]
+        got = np.unique(np.round(x[r], 12))
+        np.testing.assert_allclose(got, np.unique(np.round(want, 12)), atol=1e-12)
