@@ -12,9 +12,12 @@ same code the UI runs after its debounce) and times until the material is update
   preview        the worker's quick tables of a miss (``prepare(spec, "preview")``), shown first in the UI
   table hit      back to a value seen before: tables from the cache, bytecode reused
   structure      layer count: full rebuild (api.make_scratched_material, atomic), tables from the cache
-  UI miss        in the UI the tables compute in a worker thread: the main thread is blocked only while a
+  UI miss        in the UI the tables compute in worker threads: the main thread is blocked only while a
                  result is applied (measured by driving ``live._tick`` with timers simulated; main-thread CPU
-                 by ``time.thread_time``); change -> preview shown, change -> full tables shown
+                 by ``time.thread_time``); change -> preview shown, change -> full tables shown; with 2 workers
+                 (preview and full tables side by side, ``live.WORKERS``) and 1 (one after the other), interleaved
+  in place, as before   the same miss with the shader compiled on the main thread after the tables
+                 (``osl_compile.precompile`` off), interleaved with the in-place rows
 
 Cost (``--cost``): whole-frame render A/B of the same material built with the "Scratch Controls" node
 (length, width, density, tint as sockets) and with those values compiled in as constants (``LIVE_CONTROLS =
@@ -102,25 +105,34 @@ def _ui_block(live, mat, prop, value) -> dict:
 
 @contextlib.contextmanager
 def _before():
-    """The in-place update as it was before this round (for an interleaved A/B): the tracer evaluates the exact
-    conductor formula per bounce, every table node is repointed one by one, every socket value rewritten."""
-    from scratch_materials.precompute.scratch import material as pm
-    from scratch_materials.scratch_addon import scratch_material as sm
+    """The in-place update as it was before this round (session 5; for an interleaved A/B): the new shader is
+    compiled on the main thread when the material is updated, not in the background while its table images
+    update (``osl_compile.precompile`` off)."""
+    from scratch_materials.scratch_addon import osl_compile
 
-    saved = pm.trace_fresnel, sm._repoint_images, sm._set_default
-
-    def repoint(tree, table_nodes, new):
-        for node in table_nodes:
-            node.image = new[node.image.name.rsplit(" ", 1)[0]]
-
-    def set_default(socket, value):
-        socket.default_value = value
-
-    pm.trace_fresnel, sm._repoint_images, sm._set_default = (lambda p: p.fresnel), repoint, set_default
+    saved = osl_compile.precompile
+    osl_compile.precompile = lambda src: None
     try:
         yield
     finally:
-        pm.trace_fresnel, sm._repoint_images, sm._set_default = saved
+        osl_compile.precompile = saved
+
+
+@contextlib.contextmanager
+def _workers(live, n: int):
+    """The live-edit worker pool with ``n`` threads (1: a miss's preview, then its full tables, on one core)."""
+    saved = live.WORKERS
+    if live._worker is not None:
+        live._worker.shutdown(wait=True)
+        live._worker = None
+    live.WORKERS = n
+    try:
+        yield
+    finally:
+        if live._worker is not None:
+            live._worker.shutdown(wait=True)
+            live._worker = None
+        live.WORKERS = saved
 
 
 def _table_rows(spec_of, repeats: int) -> list:
@@ -199,8 +211,8 @@ def timing(repeats: int) -> list:
         forced.append(_timed(lambda: live.sync(mat, force=True)))
         c_forced.append(_CPU[-1])
     rows.append(_row("table: profile value (in place)", "miss", misses, c_miss))
-    rows.append(_row("table: profile value (in place), as before: exact Fresnel per bounce, images repointed per "
-                     "node, unchanged sockets rewritten", "miss", old_miss, c_old))
+    rows.append(_row("table: profile value (in place), as before: shader compiled on the main thread, after the "
+                     "tables", "miss", old_miss, c_old))
     rows.extend(_table_rows(spec_of=lambda: live._spec(mat), repeats=repeats))
     rows.append(_row("table: profile value, forced rebuild (old path of a shape change)", "miss", forced, c_forced))
     hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.06 + 0.013 * (i + 1)
@@ -222,14 +234,19 @@ def timing(repeats: int) -> list:
     rows.append(_row("table: metal", "hit", [_timed(lambda m=m: setattr(s, "metal", m))
                                              for m in ("iron", "gold", "copper", "iron")]))
     rows.append(_row("layers: seed (in place)", "hit", [_timed(lambda n=n: setattr(s, "seed", n)) for n in (1, 2, 0)]))
-    ui = [_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i) for i in range(max(2, repeats // 2))]
-    med = lambda k: statistics.median([u[k] for u in ui if u[k] is not None])  # noqa: E731
-    rows.append(("UI, worker thread: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
-                 len(ui)))
-    rows.append(("UI, worker thread: profile value, longest main-thread block (main-thread CPU)", "miss", "-",
-                 med("block_cpu"), len(ui)))
-    rows.append(("UI, worker thread: profile value, change -> preview shown", "miss", med("preview"), "-", len(ui)))
-    rows.append(("UI, worker thread: profile value, change -> full tables shown", "miss", med("full"), "-", len(ui)))
+    ui = {2: [], 1: []}            # two workers (preview and full side by side) / one, interleaved
+    for i in range(max(2, repeats // 2)):
+        for n in ((2, 1) if i % 2 == 0 else (1, 2)):
+            with _workers(live, n):
+                ui[n].append(_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i + 0.0003 * n))
+    for n, label in ((2, "UI, 2 workers"), (1, "UI, 1 worker (preview, then full)")):
+        med = lambda k: statistics.median([u[k] for u in ui[n] if u[k] is not None])  # noqa: E731
+        rows.append((f"{label}: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
+                     len(ui[n])))
+        rows.append((f"{label}: profile value, longest main-thread block (main-thread CPU)", "miss", "-",
+                     med("block_cpu"), len(ui[n])))
+        rows.append((f"{label}: profile value, change -> preview shown", "miss", med("preview"), "-", len(ui[n])))
+        rows.append((f"{label}: profile value, change -> full tables shown", "miss", med("full"), "-", len(ui[n])))
     rows.append(_row("structure: layer count (rebuild)", "hit", [_timed(lambda n=n: setattr(s, "n_layers", n))
                                                                  for n in (31, 32)]))
     return rows
