@@ -136,44 +136,55 @@ def _workers(live, n: int):
 
 
 def _table_rows(spec_of, repeats: int) -> list:
-    """Tables alone (``precompute.scratch.material.tables``, no cache) of a profile miss at the material's
-    resolution, with the tabulated / exact Fresnel interleaved, and the exact traces' share (``beam.trace_exact``
-    via ``slices._trace``, CPU)."""
+    """Tables alone (``precompute.scratch.lobes.table_lobes``, no cache) of a profile miss at the material's
+    resolution, interleaved: as shipped (start nodes' traces reused by the θo basis, ``slices.TRACE_WORKERS``
+    as set), the θo basis tracing every node again (as before this round), and each trace split over the two
+    cores (``TRACE_WORKERS = 2``); with the traces' share (``slices._trace``, wall and CPU)."""
     import dataclasses
 
     from scratch_materials.precompute.scratch import material as pm, profiles, slices
 
-    real_trace, real_tf = slices._trace, pm.trace_fresnel
+    real_trace, real_workers, real_nodes = slices._trace, slices.TRACE_WORKERS, slices._phi_nodes
     traced = []
 
     def timed_trace(*a, **k):
-        c0 = time.process_time()
+        c0, t0 = time.process_time(), time.perf_counter()
         try:
             return real_trace(*a, **k)
         finally:
-            traced[-1] += time.process_time() - c0
+            traced[-1][0] += time.perf_counter() - t0
+            traced[-1][1] += time.process_time() - c0
 
+    def no_reuse(*a):
+        return real_nodes(*a[:7])            # no records: the θo basis traces every node
+
+    variants = {"shipped": (real_workers, real_nodes), "retrace": (real_workers, no_reuse), "split": (2, real_nodes)}
+    labels = {"shipped": f"as shipped (start traces reused, {real_workers} trace thread(s))",
+              "retrace": "θo basis traces every node again (before)",
+              "split": "start traces reused, each trace split over 2 threads"}
     spec = spec_of()
-    tab, exact, tr_tab, tr_exact = [], [], [], []
+    out = {k: [] for k in variants}
     slices._trace = timed_trace
     try:
         for i in range(repeats):
-            for use_table in ((True, False) if i % 2 == 0 else (False, True)):
-                p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i))
-                pm.trace_fresnel = real_tf if use_table else (lambda q: q.fresnel)
-                traced.append(0.0)
+            order = list(variants) if i % 2 == 0 else list(variants)[::-1]
+            for j, key in enumerate(order):
+                p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i + 0.0002 * j))
+                slices.TRACE_WORKERS, slices._phi_nodes = variants[key]
+                traced.append([0.0, 0.0])
                 t = _timed(lambda p=p: pm.lobes.table_lobes(p.profile, pm.trace_fresnel(p), p.resolution, p.slices,
                                                             use_cache=False))
-                (tab if use_table else exact).append(t)
-                (tr_tab if use_table else tr_exact).append((_CPU[-1], traced[-1]))
+                out[key].append((t, _CPU[-1], traced[-1][0], traced[-1][1]))
     finally:
-        slices._trace, pm.trace_fresnel = real_trace, real_tf
+        slices._trace, slices.TRACE_WORKERS, slices._phi_nodes = real_trace, real_workers, real_nodes
     M = spec.resolution
-    return [_row(f"tables alone (table_lobes, M = {M}), tabulated Fresnel", "miss", tab, [c for c, _ in tr_tab]),
-            _row(f"tables alone (table_lobes, M = {M}), exact Fresnel per bounce", "miss", exact,
-                 [c for c, _ in tr_exact]),
-            ("  of which the exact traces (beam.trace_exact), tabulated Fresnel", "miss", "-",
-             statistics.median([t for _, t in tr_tab]), len(tr_tab))]
+    med = lambda n, k: statistics.median([r[k] for r in out[n]])  # noqa: E731
+    rows = []
+    for key in variants:
+        rows.append((f"tables alone (table_lobes, M = {M}), {labels[key]}", "miss", med(key, 0), med(key, 1),
+                     len(out[key])))
+        rows.append((f"  of which the exact traces (slices._trace)", "miss", med(key, 2), med(key, 3), len(out[key])))
+    return rows
 
 
 def default_resolution() -> int:

@@ -12,6 +12,7 @@ import glob
 import os
 import sys
 import tempfile
+import threading
 
 import bpy
 
@@ -85,8 +86,8 @@ _PRECOMPILED: dict = {}
 _PRECOMPILED_MAX = 16
 _INFLIGHT: dict = {}     # text hash -> future of a precompile under way
 _COMPILER = None         # one background thread: one OSL compile at a time
-_LOCK = __import__("threading").Lock()
-_COMPILE_LOCK = __import__("threading").Lock()   # never two OSL compiles at once (the compiler's thread safety)
+_LOCK = threading.Lock()
+_COMPILE_LOCK = threading.Lock()   # never two OSL compiles at once (the compiler's thread safety)
 
 
 def _text_key(text: str) -> str:

@@ -32,3 +32,56 @@ _RNG = np.random.default_rng(7)
     (np.array([1e300, -0.0, 5e-324, 1.0 / 3.0]), "float"), (np.array([True, False, True]), "int")])
 def test_const_array_text_is_the_per_element_formatters(values, ctype):
     assert const_array("TB_X", values, ctype) == _const_array_reference("TB_X", values, ctype)
+
+
+def test_split_trace_equals_one_call_record_for_record(monkeypatch):
+    """``slices._trace`` split over threads (``TRACE_WORKERS``, interleaved directions) gives the records of one
+    ``beam.trace_exact`` call, bit for bit up to their order (the directions are traced independently), and the
+    per-direction lost flux in place; the view slices built from them are identical."""
+    from scratch_materials.precompute.scratch import material as pm, profiles, slices
+
+    fres = pm.trace_fresnel(pm.validate(fresnel="gold"))
+    prof = profiles.quartic(0.09)
+    phi = np.linspace(-0.5 * np.pi, 0.5 * np.pi, 37)
+    cos = np.cos(slices.theta_of_coordinate(np.linspace(0.0, 1.0, 5)))
+    monkeypatch.setattr(slices, "TRACE_WORKERS", 1)
+    one = slices._trace(prof, phi, fres, cos)
+    monkeypatch.setattr(slices, "TRACE_WORKERS", 3)
+    split = slices._trace(prof, phi, fres, cos)
+    assert split.sample.size == one.sample.size > phi.size
+    assert not np.array_equal(split.sample, one.sample)          # really split: another order
+    a, b = np.lexsort((one.pid, one.bounces, one.sample)), np.lexsort((split.pid, split.bounces, split.sample))
+    for field in ("sample", "pid", "bounces", "phi_o", "weight", "fresnel", "flux_ab", "bounds"):
+        np.testing.assert_array_equal(getattr(split, field)[b], getattr(one, field)[a], err_msg=field)
+    np.testing.assert_array_equal(split.lost, one.lost)
+    monkeypatch.setattr(slices, "TRACE_WORKERS", 2)
+    vs2 = slices.view_slices(prof, 64, fres, base=16, levels=2)
+    monkeypatch.setattr(slices, "TRACE_WORKERS", 1)
+    vs1 = slices.view_slices(prof, 64, fres, base=16, levels=2)
+    for k, v in vs1.arrays().items():
+        np.testing.assert_allclose(vs2.arrays()[k], v, rtol=1e-12, atol=1e-15, err_msg=k)
+
+
+def test_theta_basis_reuses_the_start_traces_and_equals_tracing_every_node(monkeypatch):
+    """The start φo nodes are traced once at every θo sample (``_phi_nodes(..., theta, records)``); the θo basis
+    then traces only the nodes refinement added.  The view slices equal those of the θo basis tracing every
+    node again (the records are the same, bit for bit)."""
+    from scratch_materials.precompute.scratch import material as pm, profiles, slices
+
+    fres = pm.trace_fresnel(pm.validate(fresnel="copper"))
+    prof = profiles.quartic(0.11)
+    calls = []
+    real = slices._trace
+    monkeypatch.setattr(slices, "_trace", lambda p, phi, f=None, c=(): calls.append((np.size(phi), len(c)))
+                        or real(p, phi, f, c))
+    reused = slices.view_slices(prof, 64, fres, base=16, levels=2)
+    T = 32
+    theta_calls = [n for n, t in calls if t == T]
+    assert theta_calls[0] == 17 and sum(theta_calls) == reused.phi.size      # 16 start intervals: 17 nodes
+    real_nodes = slices._phi_nodes
+    monkeypatch.setattr(slices, "_phi_nodes", lambda *a: real_nodes(*a[:7]))     # no records kept
+    calls.clear()
+    again = slices.view_slices(prof, 64, fres, base=16, levels=2)
+    assert [n for n, t in calls if t == T] == [again.phi.size]                    # every node traced again
+    for k, v in again.arrays().items():
+        np.testing.assert_allclose(reused.arrays()[k], v, rtol=1e-12, atol=1e-15, err_msg=k)
