@@ -16,9 +16,10 @@ In the UI, table and structure edits are debounced (``DEBOUNCE_S`` after the las
 queues one update with the last value), the tables are computed in worker threads (numpy releases the
 GIL: the UI stays responsive during a cache miss) and applied on the main thread.  On a cache miss of
 table lobes quick *preview* tables (``precompute.scratch.lobes.table_lobes``, quality "preview": about a
-quarter of the cost, moments within 3 %) and the full tables are computed at the same time, on two
-workers (the machine's two cores); the preview is applied as soon as it is ready, then the full tables
-replace it (the material carries ``scratch_material.PREVIEW_KEY`` in between).  Headless
+quarter of the cost, moments within 3 %) and the full tables are submitted together (``WORKERS``
+threads: with one, the full tables start as soon as the preview is computed, not after it is applied);
+the preview is applied as soon as it is ready, then the full tables replace it (the material carries
+``scratch_material.PREVIEW_KEY`` in between).  Headless
 (``blender -b``, tests) ``bpy.app.timers`` never fire, so edits apply synchronously, except inside
 ``batch()`` which applies once at its end.  ``flush()`` applies whatever is pending.
 
@@ -56,8 +57,10 @@ _calls: dict = {}       # key -> (due time, function): other debounced rebuilds 
 _worker = None
 _job = None             # (material name, table key, future, quality) of the running table computation
 _ahead: dict = {}       # (material name, table key) -> future of the full tables, computed beside a preview
-#: table computations at once: a miss's preview and its full tables side by side (one core each)
-WORKERS = 2
+#: table computations at once.  2 computes a miss's preview and full tables side by side; on the shared
+#: 2-core machine (load 30, bench live_update) that showed the preview 1.24 s after the change instead of
+#: 0.74 s and the full tables no sooner (2.83 s vs 2.84 s), so one worker, the preview first
+WORKERS = 1
 _stats = {"last": None}  # the last applied update: kind and seconds (bench/live_update.py)
 
 

@@ -157,10 +157,45 @@ def test_live_table_edit_compiles_its_shader_in_the_background(addon, scene, mon
     real_text = oc._compile_text
     monkeypatch.setattr(oc, "_compile_text", lambda t: where.append(threading.current_thread()) or real_text(t))
     m = addon.api.make_scratched_material("demo", name="live E", **MAT)
+    import cycles.osl
+
+    real = cycles.osl.osl_compile
+    main = []
+    monkeypatch.setattr(cycles.osl, "osl_compile", lambda p, r: main.append(p) or real(p, r))
     where.clear()
     m.scratch.profile_value = 0.171                      # a miss: a new source
     assert addon.live.last_update()["kind"] == "tables"
     assert len(where) == 1 and where[0] is not threading.main_thread()
+    assert main == []                                    # and not compiled a second time on the main thread
     fresh = bpy.data.materials.new("fresh E")
     addon.api.make_scratched_material(material=fresh, **m.scratch.to_params())
     assert _script(m).bytecode_hash == _script(fresh).bytecode_hash and _script(m).bytecode
+
+
+def test_ui_miss_queues_the_full_tables_with_the_preview(addon, scene, monkeypatch):
+    """UI mode, a cache miss: the first tick submits the preview *and* the full tables (``live._ahead``), so
+    the full ones start as soon as a worker is free, not after the main thread applied the preview; the full
+    ones are then applied from that same computation (computed once)."""
+    import time
+
+    live, sm = addon.live, addon.scratch_material
+    monkeypatch.setattr(live, "_background", lambda: False)
+    monkeypatch.setattr(live.bpy.app.timers, "register", lambda *a, **k: None)
+    monkeypatch.setattr(live.bpy.app.timers, "is_registered", lambda *a, **k: True)
+    m = addon.api.make_scratched_material("demo", name="live F", **MAT)
+    qualities = []
+    real = sm.prepare
+    monkeypatch.setattr(sm, "prepare", lambda spec, q="full": qualities.append(q) or real(spec, q))
+    m.scratch.profile_value = 0.187                # never seen: a miss
+    live._pending[m.name] = 0.0
+    live._tick()
+    key = sm.live_keys(sm.validate(**m.scratch.to_params()), m.name)[0]
+    assert live._job is not None and live._job[3] is None         # the preview job
+    assert (m.name, key) in live._ahead                            # the full tables: already submitted
+    for _ in range(4000):
+        if live._tick() is None:
+            break
+        time.sleep(0.01)
+    assert not live.pending() and not live._ahead
+    assert sorted(qualities) == ["full", "preview"]                # nothing computed twice
+    assert sm.PREVIEW_KEY not in m and m[sm.TABLE_KEY] == key

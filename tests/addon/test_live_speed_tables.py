@@ -85,3 +85,28 @@ def test_theta_basis_reuses_the_start_traces_and_equals_tracing_every_node(monke
     assert [n for n, t in calls if t == T] == [again.phi.size]                    # every node traced again
     for k, v in again.arrays().items():
         np.testing.assert_allclose(reused.arrays()[k], v, rtol=1e-12, atol=1e-15, err_msg=k)
+
+
+def test_alias_table_of_a_distribution_seen_before_is_remembered_exactly():
+    """``lobe_table.alias_table`` remembers the tables it built (a cache hit of a live edit builds none): the
+    remembered table equals a fresh construction bit for bit, is handed out as a copy, and the memory is
+    bounded."""
+    from scratch_materials.precompute.scratch import lobe_table as lt
+
+    rng = np.random.default_rng(5)
+    w = rng.random((12, 32)) ** 4
+    w[2] = 0.0
+    cdf = lt.proposal(w)[0]
+    first = lt.alias_table(cdf)
+    fresh = lt._alias_table(np.asarray(cdf, float))
+    again = lt.alias_table(cdf.copy())
+    for a, b, c in zip(first, fresh, again):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(c, b)
+    again[0][:] = -1.0                                   # a caller's edit does not reach the memory
+    np.testing.assert_array_equal(lt.alias_table(cdf)[0], fresh[0])
+    other = lt.proposal(np.roll(w, 1, axis=1))[0]        # another distribution: its own table
+    assert not np.array_equal(lt.alias_table(other)[1], fresh[1])
+    for k in range(lt._ALIAS_MAX + 5):
+        lt.alias_table(lt.proposal(rng.random((2, 8)) + k)[0])
+    assert len(lt._ALIAS) <= lt._ALIAS_MAX

@@ -416,9 +416,8 @@ def test_ui_cache_miss_shows_preview_tables_then_the_full_ones(addon, mat, monke
             break
         time.sleep(0.01)
     assert not live.pending()
-    assert sorted(q for _t, q in threads) == ["full", "preview"]   # computed side by side, each once
+    assert sorted(q for _t, q in threads) == ["full", "preview"]   # each computed once (submitted together)
     assert all(t is not threading.main_thread() for t, _q in threads)
-    assert len({t for t, _q in threads}) == 2                      # on two workers (the two cores)
     assert [p for _i, p, _s in seen] == [True, False]
     assert seen[0][2] < seen[1][2]                       # the preview has fewer φo nodes
     assert sm.PREVIEW_KEY not in mat
