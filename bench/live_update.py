@@ -5,17 +5,20 @@ fresh table cache; each row sets one ``material.scratch`` setting (headless: app
 same code the UI runs after its debounce) and times until the material is updated:
 
   socket         density / tint / base colour: one socket write (no table, no shader text)
-  table miss     profile value or metal never seen: tables computed (cache miss), OSL source compiled, table
-                 images repointed in place (also when the adaptive tables change shape: node count S, θo rank)
+  table miss     profile value or metal never seen: tables computed (cache miss), OSL source compiled (in the
+                 background, ``osl_compile.precompile``, while the table images are repointed in place; also
+                 when the adaptive tables change shape: node count S, θo rank)
   forced rebuild the same kind of miss applied as a full rebuild (``sync(force=True)``: what a shape change
                  cost before), interleaved with the in-place rows
   preview        the worker's quick tables of a miss (``prepare(spec, "preview")``), shown first in the UI
-  table hit      back to a value seen before: tables from the cache, bytecode reused
+  table hit      back to a value seen before: tables from the cache, bytecode and alias tables reused
   structure      layer count: full rebuild (api.make_scratched_material, atomic), tables from the cache
   UI miss        in the UI the tables compute in worker threads: the main thread is blocked only while a
                  result is applied (measured by driving ``live._tick`` with timers simulated; main-thread CPU
-                 by ``time.thread_time``); change -> preview shown, change -> full tables shown; with 2 workers
-                 (preview and full tables side by side, ``live.WORKERS``) and 1 (one after the other), interleaved
+                 by ``time.thread_time``); change -> preview shown, change -> full tables shown; with 1 worker
+                 (``live.WORKERS``, the default: preview, then full) and 2 (side by side), interleaved
+  tables alone   ``table_lobes`` without the cache: as shipped / the θo basis tracing every node again (before
+                 this round) / each trace split over 2 threads (``slices.TRACE_WORKERS``), interleaved
   in place, as before   the same miss with the shader compiled on the main thread after the tables
                  (``osl_compile.precompile`` off), interleaved with the in-place rows
 
@@ -208,7 +211,7 @@ def timing(repeats: int) -> list:
         ts = [_timed(lambda v=v: setattr(s, prop, v)) for _ in range(repeats) for v in values]
         rows.append(_row(label, "-", ts))
     misses, forced, c_miss, c_forced, old_miss, c_old = [], [], [], [], [], []
-    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (session 3), forced rebuild
+    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (main-thread compile), forced rebuild
         v = 0.06 + 0.013 * (i + 1)                       # never seen: cache miss
         misses.append(_timed(lambda v=v: setattr(s, "profile_value", v)))
         c_miss.append(_CPU[-1])
@@ -250,7 +253,7 @@ def timing(repeats: int) -> list:
         for n in ((2, 1) if i % 2 == 0 else (1, 2)):
             with _workers(live, n):
                 ui[n].append(_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i + 0.0003 * n))
-    for n, label in ((2, "UI, 2 workers"), (1, "UI, 1 worker (preview, then full)")):
+    for n, label in ((1, "UI, 1 worker (default: preview, then full)"), (2, "UI, 2 workers (side by side)")):
         med = lambda k: statistics.median([u[k] for u in ui[n] if u[k] is not None])  # noqa: E731
         rows.append((f"{label}: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
                      len(ui[n])))
