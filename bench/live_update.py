@@ -5,16 +5,22 @@ fresh table cache; each row sets one ``material.scratch`` setting (headless: app
 same code the UI runs after its debounce) and times until the material is updated:
 
   socket         density / tint / base colour: one socket write (no table, no shader text)
-  table miss     profile value or metal never seen: tables computed (cache miss), OSL source compiled, table
-                 images repointed in place (also when the adaptive tables change shape: node count S, θo rank)
+  table miss     profile value or metal never seen: tables computed (cache miss), OSL source compiled (in the
+                 background, ``osl_compile.precompile``, while the table images are repointed in place; also
+                 when the adaptive tables change shape: node count S, θo rank)
   forced rebuild the same kind of miss applied as a full rebuild (``sync(force=True)``: what a shape change
                  cost before), interleaved with the in-place rows
   preview        the worker's quick tables of a miss (``prepare(spec, "preview")``), shown first in the UI
-  table hit      back to a value seen before: tables from the cache, bytecode reused
+  table hit      back to a value seen before: tables from the cache, bytecode and alias tables reused
   structure      layer count: full rebuild (api.make_scratched_material, atomic), tables from the cache
-  UI miss        in the UI the tables compute in a worker thread: the main thread is blocked only while a
+  UI miss        in the UI the tables compute in worker threads: the main thread is blocked only while a
                  result is applied (measured by driving ``live._tick`` with timers simulated; main-thread CPU
-                 by ``time.thread_time``); change -> preview shown, change -> full tables shown
+                 by ``time.thread_time``); change -> preview shown, change -> full tables shown; with 1 worker
+                 (``live.WORKERS``, the default: preview, then full) and 2 (side by side), interleaved
+  tables alone   ``table_lobes`` without the cache: as shipped / the θo basis tracing every node again (before
+                 this round) / each trace split over 2 threads (``slices.TRACE_WORKERS``), interleaved
+  in place, as before   the same miss with the shader compiled on the main thread after the tables
+                 (``osl_compile.precompile`` off), interleaved with the in-place rows
 
 Cost (``--cost``): whole-frame render A/B of the same material built with the "Scratch Controls" node
 (length, width, density, tint as sockets) and with those values compiled in as constants (``LIVE_CONTROLS =
@@ -102,66 +108,86 @@ def _ui_block(live, mat, prop, value) -> dict:
 
 @contextlib.contextmanager
 def _before():
-    """The in-place update as it was before this round (for an interleaved A/B): the tracer evaluates the exact
-    conductor formula per bounce, every table node is repointed one by one, every socket value rewritten."""
-    from scratch_materials.precompute.scratch import material as pm
-    from scratch_materials.scratch_addon import scratch_material as sm
+    """The in-place update as it was before this round (session 5; for an interleaved A/B): the new shader is
+    compiled on the main thread when the material is updated, not in the background while its table images
+    update (``osl_compile.precompile`` off)."""
+    from scratch_materials.scratch_addon import osl_compile
 
-    saved = pm.trace_fresnel, sm._repoint_images, sm._set_default
-
-    def repoint(tree, table_nodes, new):
-        for node in table_nodes:
-            node.image = new[node.image.name.rsplit(" ", 1)[0]]
-
-    def set_default(socket, value):
-        socket.default_value = value
-
-    pm.trace_fresnel, sm._repoint_images, sm._set_default = (lambda p: p.fresnel), repoint, set_default
+    saved = osl_compile.precompile
+    osl_compile.precompile = lambda src: None
     try:
         yield
     finally:
-        pm.trace_fresnel, sm._repoint_images, sm._set_default = saved
+        osl_compile.precompile = saved
+
+
+@contextlib.contextmanager
+def _workers(live, n: int):
+    """The live-edit worker pool with ``n`` threads (1: a miss's preview, then its full tables, on one core)."""
+    saved = live.WORKERS
+    if live._worker is not None:
+        live._worker.shutdown(wait=True)
+        live._worker = None
+    live.WORKERS = n
+    try:
+        yield
+    finally:
+        if live._worker is not None:
+            live._worker.shutdown(wait=True)
+            live._worker = None
+        live.WORKERS = saved
 
 
 def _table_rows(spec_of, repeats: int) -> list:
-    """Tables alone (``precompute.scratch.material.tables``, no cache) of a profile miss at the material's
-    resolution, with the tabulated / exact Fresnel interleaved, and the exact traces' share (``beam.trace_exact``
-    via ``slices._trace``, CPU)."""
+    """Tables alone (``precompute.scratch.lobes.table_lobes``, no cache) of a profile miss at the material's
+    resolution, interleaved: as shipped (start nodes' traces reused by the θo basis, ``slices.TRACE_WORKERS``
+    as set), the θo basis tracing every node again (as before this round), and each trace split over the two
+    cores (``TRACE_WORKERS = 2``); with the traces' share (``slices._trace``, wall and CPU)."""
     import dataclasses
 
     from scratch_materials.precompute.scratch import material as pm, profiles, slices
 
-    real_trace, real_tf = slices._trace, pm.trace_fresnel
+    real_trace, real_workers, real_nodes = slices._trace, slices.TRACE_WORKERS, slices._phi_nodes
     traced = []
 
     def timed_trace(*a, **k):
-        c0 = time.process_time()
+        c0, t0 = time.process_time(), time.perf_counter()
         try:
             return real_trace(*a, **k)
         finally:
-            traced[-1] += time.process_time() - c0
+            traced[-1][0] += time.perf_counter() - t0
+            traced[-1][1] += time.process_time() - c0
 
+    def no_reuse(*a):
+        return real_nodes(*a[:7])            # no records: the θo basis traces every node
+
+    variants = {"shipped": (real_workers, real_nodes), "retrace": (real_workers, no_reuse), "split": (2, real_nodes)}
+    labels = {"shipped": f"as shipped (start traces reused, {real_workers} trace thread(s))",
+              "retrace": "θo basis traces every node again (before)",
+              "split": "start traces reused, each trace split over 2 threads"}
     spec = spec_of()
-    tab, exact, tr_tab, tr_exact = [], [], [], []
+    out = {k: [] for k in variants}
     slices._trace = timed_trace
     try:
         for i in range(repeats):
-            for use_table in ((True, False) if i % 2 == 0 else (False, True)):
-                p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i))
-                pm.trace_fresnel = real_tf if use_table else (lambda q: q.fresnel)
-                traced.append(0.0)
+            order = list(variants) if i % 2 == 0 else list(variants)[::-1]
+            for j, key in enumerate(order):
+                p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i + 0.0002 * j))
+                slices.TRACE_WORKERS, slices._phi_nodes = variants[key]
+                traced.append([0.0, 0.0])
                 t = _timed(lambda p=p: pm.lobes.table_lobes(p.profile, pm.trace_fresnel(p), p.resolution, p.slices,
                                                             use_cache=False))
-                (tab if use_table else exact).append(t)
-                (tr_tab if use_table else tr_exact).append((_CPU[-1], traced[-1]))
+                out[key].append((t, _CPU[-1], traced[-1][0], traced[-1][1]))
     finally:
-        slices._trace, pm.trace_fresnel = real_trace, real_tf
+        slices._trace, slices.TRACE_WORKERS, slices._phi_nodes = real_trace, real_workers, real_nodes
     M = spec.resolution
-    return [_row(f"tables alone (table_lobes, M = {M}), tabulated Fresnel", "miss", tab, [c for c, _ in tr_tab]),
-            _row(f"tables alone (table_lobes, M = {M}), exact Fresnel per bounce", "miss", exact,
-                 [c for c, _ in tr_exact]),
-            ("  of which the exact traces (beam.trace_exact), tabulated Fresnel", "miss", "-",
-             statistics.median([t for _, t in tr_tab]), len(tr_tab))]
+    med = lambda n, k: statistics.median([r[k] for r in out[n]])  # noqa: E731
+    rows = []
+    for key in variants:
+        rows.append((f"tables alone (table_lobes, M = {M}), {labels[key]}", "miss", med(key, 0), med(key, 1),
+                     len(out[key])))
+        rows.append((f"  of which the exact traces (slices._trace)", "miss", med(key, 2), med(key, 3), len(out[key])))
+    return rows
 
 
 def default_resolution() -> int:
@@ -185,7 +211,7 @@ def timing(repeats: int) -> list:
         ts = [_timed(lambda v=v: setattr(s, prop, v)) for _ in range(repeats) for v in values]
         rows.append(_row(label, "-", ts))
     misses, forced, c_miss, c_forced, old_miss, c_old = [], [], [], [], [], []
-    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (session 3), forced rebuild
+    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (main-thread compile), forced rebuild
         v = 0.06 + 0.013 * (i + 1)                       # never seen: cache miss
         misses.append(_timed(lambda v=v: setattr(s, "profile_value", v)))
         c_miss.append(_CPU[-1])
@@ -199,8 +225,8 @@ def timing(repeats: int) -> list:
         forced.append(_timed(lambda: live.sync(mat, force=True)))
         c_forced.append(_CPU[-1])
     rows.append(_row("table: profile value (in place)", "miss", misses, c_miss))
-    rows.append(_row("table: profile value (in place), as before: exact Fresnel per bounce, images repointed per "
-                     "node, unchanged sockets rewritten", "miss", old_miss, c_old))
+    rows.append(_row("table: profile value (in place), as before: shader compiled on the main thread, after the "
+                     "tables", "miss", old_miss, c_old))
     rows.extend(_table_rows(spec_of=lambda: live._spec(mat), repeats=repeats))
     rows.append(_row("table: profile value, forced rebuild (old path of a shape change)", "miss", forced, c_forced))
     hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.06 + 0.013 * (i + 1)
@@ -222,14 +248,19 @@ def timing(repeats: int) -> list:
     rows.append(_row("table: metal", "hit", [_timed(lambda m=m: setattr(s, "metal", m))
                                              for m in ("iron", "gold", "copper", "iron")]))
     rows.append(_row("layers: seed (in place)", "hit", [_timed(lambda n=n: setattr(s, "seed", n)) for n in (1, 2, 0)]))
-    ui = [_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i) for i in range(max(2, repeats // 2))]
-    med = lambda k: statistics.median([u[k] for u in ui if u[k] is not None])  # noqa: E731
-    rows.append(("UI, worker thread: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
-                 len(ui)))
-    rows.append(("UI, worker thread: profile value, longest main-thread block (main-thread CPU)", "miss", "-",
-                 med("block_cpu"), len(ui)))
-    rows.append(("UI, worker thread: profile value, change -> preview shown", "miss", med("preview"), "-", len(ui)))
-    rows.append(("UI, worker thread: profile value, change -> full tables shown", "miss", med("full"), "-", len(ui)))
+    ui = {2: [], 1: []}            # two workers (preview and full side by side) / one, interleaved
+    for i in range(max(2, repeats // 2)):
+        for n in ((2, 1) if i % 2 == 0 else (1, 2)):
+            with _workers(live, n):
+                ui[n].append(_ui_block(live, mat, "profile_value", 0.031 + 0.007 * i + 0.0003 * n))
+    for n, label in ((1, "UI, 1 worker (default: preview, then full)"), (2, "UI, 2 workers (side by side)")):
+        med = lambda k: statistics.median([u[k] for u in ui[n] if u[k] is not None])  # noqa: E731
+        rows.append((f"{label}: profile value, longest main-thread block (wall)", "miss", med("block"), "-",
+                     len(ui[n])))
+        rows.append((f"{label}: profile value, longest main-thread block (main-thread CPU)", "miss", "-",
+                     med("block_cpu"), len(ui[n])))
+        rows.append((f"{label}: profile value, change -> preview shown", "miss", med("preview"), "-", len(ui[n])))
+        rows.append((f"{label}: profile value, change -> full tables shown", "miss", med("full"), "-", len(ui[n])))
     rows.append(_row("structure: layer count (rebuild)", "hit", [_timed(lambda n=n: setattr(s, "n_layers", n))
                                                                  for n in (31, 32)]))
     return rows

@@ -17,6 +17,8 @@ from __future__ import annotations
 import os
 import re
 
+import numpy as np
+
 #: Folder of the .osl sources and of their .h headers.
 OSL_DIR = os.path.dirname(os.path.abspath(__file__))
 
@@ -31,14 +33,18 @@ def read_source(name: str) -> str:
 
 def const_array(name: str, values, ctype: str = "float", per_line: int = 8) -> str:
     """``float name[n] = {...};`` (or ``int``) with float32-exact literals (at least one element)."""
-    conv, fmt = (int, "{:d}") if ctype == "int" else (float, "{:.9g}")
-    vals = [conv(v) for v in (values if hasattr(values, "__iter__") else [values])]
+    conv, fmt = (int, "%d") if ctype == "int" else (float, "%.9g")
+    if isinstance(values, np.ndarray):   # one conversion, one C-level format of the whole array (a live edit's tables)
+        vals = values.ravel().astype(np.int64 if ctype == "int" else np.float64).tolist()
+    else:
+        vals = [conv(v) for v in (values if hasattr(values, "__iter__") else [values])]
     if not vals:
         vals = [conv(0)]
-    lines = []
-    for i in range(0, len(vals), per_line):
-        lines.append("        " + ", ".join(fmt.format(v) for v in vals[i:i + per_line]))
-    return f"    {ctype} {name}[{len(vals)}] = {{\n" + ",\n".join(lines) + "\n    };\n"
+    n, full = len(vals), len(vals) // per_line
+    lines = ["        " + ", ".join([fmt] * per_line)] * full
+    if n > full * per_line:
+        lines.append("        " + ", ".join([fmt] * (n - full * per_line)))
+    return f"    {ctype} {name}[{n}] = {{\n" + (",\n".join(lines) % tuple(vals)) + "\n    };\n"
 
 
 def define_value(value) -> str:

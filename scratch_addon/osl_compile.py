@@ -12,6 +12,7 @@ import glob
 import os
 import sys
 import tempfile
+import threading
 
 import bpy
 
@@ -79,8 +80,118 @@ def _captured_stderr():
                 sys.stderr.write(text)  # still show it
 
 
+# ------------------------------------------------------------------ compiling ahead (live edits, issue 18)
+#: .oso bytecode of sources compiled ahead (``precompile``), by a hash of the text Cycles compiles; bounded
+_PRECOMPILED: dict = {}
+_PRECOMPILED_MAX = 16
+_INFLIGHT: dict = {}     # text hash -> future of a precompile under way
+_COMPILER = None         # one background thread: one OSL compile at a time
+_LOCK = threading.Lock()
+_COMPILE_LOCK = threading.Lock()   # never two OSL compiles at once (the compiler's thread safety)
+
+
+def _text_key(text: str) -> str:
+    import hashlib
+
+    return hashlib.sha1(text.encode()).hexdigest()
+
+
+def _compile_text(text: str) -> str | None:
+    import _cycles
+
+    with tempfile.TemporaryDirectory(prefix="scratch_osl_") as d:
+        src, out = os.path.join(d, "shader.osl"), os.path.join(d, "shader.oso")
+        with open(src, "w", encoding="utf-8") as f:
+            f.write(text)
+        with _COMPILE_LOCK:
+            ok = _cycles.osl_compile(src, out)
+        if not ok:
+            return None
+        with open(out, encoding="utf-8") as f:
+            return f.read()
+
+
+def precompile(source: str):
+    """Start compiling the OSL ``source`` of an INTERNAL script node in a background thread (Cycles' compiler
+    releases the GIL; no bpy data is touched) and return its future (None when already compiled); a later
+    ``compile_script_node`` of a node holding this source waits for it and uses its bytecode instead of
+    compiling again.  A live edit starts it as soon as its shader text exists, so the compile runs beside the
+    table images' update (``scratch_material.prepare``).  A failed compile is not remembered:
+    ``compile_script_node`` compiles again and reports the errors."""
+    global _COMPILER
+    text = source + "\n"            # what Cycles' update_internal_script writes: the Text plus a newline
+    key = _text_key(text)
+    with _LOCK:
+        if key in _PRECOMPILED:
+            return None
+        if key in _INFLIGHT:
+            return _INFLIGHT[key]
+        if _COMPILER is None:
+            import concurrent.futures
+
+            _COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="scratch_osl")
+
+        def run():
+            try:
+                oso = _compile_text(text)
+            except Exception:  # noqa: BLE001 - compiled again (and reported) by compile_script_node
+                oso = None
+            with _LOCK:
+                _INFLIGHT.pop(key, None)
+                if oso is not None:
+                    while len(_PRECOMPILED) >= _PRECOMPILED_MAX:
+                        _PRECOMPILED.pop(next(iter(_PRECOMPILED)))
+                    _PRECOMPILED[key] = oso
+            return oso is not None
+
+        future = _INFLIGHT[key] = _COMPILER.submit(run)
+    return future
+
+
+def _precompiled(input_path: str) -> str | None:
+    """The bytecode compiled ahead for the .osl file ``input_path`` (waiting for a compile under way), or None."""
+    try:
+        with open(input_path, encoding="utf-8") as f:
+            key = _text_key(f.read())
+    except (OSError, UnicodeDecodeError):
+        return None
+    with _LOCK:
+        future = _INFLIGHT.get(key)
+    if future is not None:
+        future.result()
+    with _LOCK:
+        return _PRECOMPILED.get(key)
+
+
+@contextlib.contextmanager
+def _using_precompiled():
+    """Inside the block Cycles' ``cycles.osl.osl_compile(input_path, report)`` (which every Blender from 4.2 on
+    calls to compile a script node) takes bytecode compiled ahead when there is some for that text."""
+    import cycles.osl
+
+    real = cycles.osl.osl_compile
+
+    def osl_compile(input_path, report):
+        oso = _precompiled(input_path)
+        if oso is None:
+            with _COMPILE_LOCK:
+                return real(input_path, report)
+        out = tempfile.NamedTemporaryFile(mode="w", suffix=".oso", delete=False, encoding="utf-8")
+        with out:
+            out.write(oso)
+        report({"INFO"}, "OSL shader compilation succeeded")
+        return True, out.name
+
+    cycles.osl.osl_compile = osl_compile
+    try:
+        yield
+    finally:
+        cycles.osl.osl_compile = real
+
+
 def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
-    """Compile ``node`` (INTERNAL or EXTERNAL) and update its sockets; raise OSLCompileError on failure."""
+    """Compile ``node`` (INTERNAL or EXTERNAL) and update its sockets; raise OSLCompileError on failure.
+    Bytecode compiled ahead for the same text (``precompile``) is used instead of compiling again."""
     ensure_oslquery()
     import cycles.osl  # Cycles' own add-on module, always present in bpy
 
@@ -90,7 +201,7 @@ def compile_script_node(node: bpy.types.ShaderNodeScript) -> None:
         if "ERROR" in kind:
             errors.append(message)
 
-    with _captured_stderr() as captured:
+    with _captured_stderr() as captured, _using_precompiled():
         ok = cycles.osl.update_script_node(node, report)
     if errors or ok is False:
         details = [ln for ln in captured() if "error" in ln.lower()]

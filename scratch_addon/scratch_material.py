@@ -361,6 +361,10 @@ def shader_group_name(src: str) -> str:
     return SHADER_GROUP_PREFIX + hashlib.sha1(src.encode()).hexdigest()[:12]
 
 
+#: names of the shader groups built or found in this session (``prepare`` compiles no shader it knows in the background)
+_GROUPS_SEEN: set = set()
+
+
 def shader_group(src: str) -> bpy.types.ShaderNodeTree:
     """The node group of the OSL source ``src``, shared by every material with this shader (issue 15 item 5).
 
@@ -375,6 +379,7 @@ def shader_group(src: str) -> bpy.types.ShaderNodeTree:
     name = shader_group_name(src)
     group = bpy.data.node_groups.get(name)
     if group is not None and any(n.bl_idname == "ShaderNodeScript" and n.bytecode for n in group.nodes):
+        _GROUPS_SEEN.add(name)
         return group
     if group is not None:   # an incomplete group of that name: build it again
         bpy.data.node_groups.remove(group)
@@ -410,6 +415,7 @@ def shader_group(src: str) -> bpy.types.ShaderNodeTree:
     for sock in script.outputs:
         add_socket(group, sock.name, "OUTPUT", kinds.get(sock.type, "NodeSocketFloat"))
         group.links.new(sock, gout.inputs[sock.name])
+    _GROUPS_SEEN.add(name)
     return group
 
 
@@ -512,6 +518,8 @@ def prepare(params: ScratchParams, quality: str = "full") -> dict:
                 if len(_SOURCES) > 32:
                     _SOURCES.pop(next(iter(_SOURCES)))
                 _SOURCES[key] = src
+        if shader_group_name(src) not in _GROUPS_SEEN:   # a new shader: compile it in the background now, beside
+            osl_compile.precompile(src)                  # the table images' update (issue 18)
     return dict(tab, src=src, quality=quality)
 
 
@@ -609,8 +617,6 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
         finally:
             if base_new is not None:
                 tree.nodes.remove(base_new)
-        if script is not None:
-            _set_source(script, prepared["src"])
         # new (content-hashed, shared) images; the nodes are repointed, no image another material uses is rewritten
         preview = prepared.get("quality") == "preview"
         new = {img.name.rsplit(" ", 1)[0]: img for img in scratch_svm.table_images(material.name, svm_lobes).values()}
@@ -640,6 +646,8 @@ def apply_tables(material, params: ScratchParams, prepared: dict | None = None) 
                 scratch_svm.set_layer_constants(tree, *scratch_layers.layer_transforms(merged), "eevee")
             else:   # the EEVEE twin of a layer race (a no-op without one)
                 scratch_svm.set_layer_constants(tree, theta_k, xi_k, "eevee")
+        if script is not None:   # last: its compile (``prepare`` started it) ran beside the image updates
+            _set_source(script, prepared["src"])
         _store_params(material, params, prepared["lobes"])
         if preview:
             material[PREVIEW_KEY] = 1

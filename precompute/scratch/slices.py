@@ -155,10 +155,44 @@ def theta_of_coordinate(v):
 
 
 # ------------------------------------------------------------------------------------------ exact traces
+#: threads one trace is split over (interleaved directions: they are independent, ``beam.trace_exact`` traces
+#: each on its own, bit for bit the same in any batch; numpy releases the GIL in its array passes); 1: one
+#: call.  Off by default: on the shared 2-core machine (load 19) the split took 8 % more wall and CPU
+#: (``python -m bench live_update``); fewer than ``_MIN_SPLIT`` directions are always traced in one call.
+TRACE_WORKERS = 1
+_MIN_SPLIT = 16
+_POOL: list = []
+
+
 def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
-    return trace_exact(profile.periodic_vertices(), phi, fresnel if len(cos_theta) else None, tuple(cos_theta),
-                       max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY)
+    verts = profile.periodic_vertices()
+
+    def run(p):
+        return trace_exact(verts, p, fresnel if len(cos_theta) else None, tuple(cos_theta),
+                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY)
+
+    n = int(TRACE_WORKERS)
+    if n <= 1 or phi.ndim != 1 or phi.size < _MIN_SPLIT:
+        return run(phi)
+    if not _POOL or _POOL[0][0] != n:
+        import concurrent.futures
+
+        _POOL[:] = [(n, concurrent.futures.ThreadPoolExecutor(n, thread_name_prefix="scratch_trace"))]
+    idx = [np.arange(k, phi.size, n) for k in range(n)]     # interleaved: grazing and normal views in each part
+    return _merge(list(_POOL[0][1].map(run, [phi[i] for i in idx])), idx, phi.size)
+
+
+def _merge(parts, idx, E):
+    """One ``ExitRecords`` of traces of the directions ``phi[idx[k]]`` (``parts[k]``), samples renumbered."""
+    cat = lambda k: np.concatenate([getattr(r, k) for r in parts])  # noqa: E731
+    lost = np.zeros(E)
+    for r, i in zip(parts, idx):
+        lost[i] = r.lost
+    return type(parts[0])(
+        sample=np.concatenate([i[r.sample] for r, i in zip(parts, idx)]), pid=cat("pid"), bounces=cat("bounces"),
+        phi_o=cat("phi_o"), weight=cat("weight"), fresnel=None if parts[0].fresnel is None else cat("fresnel"),
+        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"))
 
 
 def exact_slice(profile: Profile, phi_o, fresnel=None, theta_o=()):
@@ -287,18 +321,31 @@ def _relax(phi):
     return np.maximum(1.0, np.cos(GRAZING) / np.maximum(np.cos(phi), 1e-3))
 
 
-def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes):
-    """Adaptive φo nodes: indices on the grid of G = base 2^levels cells and their rows (see module doc)."""
+def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes, theta=None, records=None):
+    """Adaptive φo nodes: indices on the grid of G = base 2^levels cells and their rows (see module doc).
+
+    ``theta`` (with Fresnel): the θo samples of the θo basis, whose first is 0; the start nodes (which every
+    refinement keeps) are traced at all of them at once and their exit records go to ``records`` (grid index
+    -> (φi, weight, bounces, Fresnel weight [n, T, C])), so ``_theta_basis`` traces only the added nodes."""
     G = base << levels
     ang = lambda i: -0.5 * np.pi + np.asarray(i) * (np.pi / G)  # noqa: E731
     cache = {}  # grid index -> (rows, exact moments)
 
-    def traced(idx):
+    def traced(idx, keep=False):
         new = sorted(set(int(i) for i in idx) - set(cache))
         if not new:
             return
         ph = ang(np.array(new))
-        smp, po, w, nb, fw = exact_slice(profile, ph, fresnel, [0.0] if fresnel is not None else ())
+        keep = keep and fresnel is not None and theta is not None and records is not None
+        # slice 0 of the θo samples is θo = 0: the same Fresnel weights as a trace at [0.0] alone, bit for bit
+        smp, po, w, nb, fw = exact_slice(profile, ph, fresnel, theta if keep else [0.0] if fresnel is not None else ())
+        if keep:
+            order = np.argsort(smp, kind="stable")
+            cuts = np.searchsorted(smp[order], np.arange(len(new) + 1))
+            for j, i in enumerate(new):
+                sel = order[cuts[j]:cuts[j + 1]]
+                records[i] = (po[sel], w[sel], nb[sel], fw[sel])
+            fw = fw[:, :1]
         mass, cen, even = _bin_rows(smp, po, w, nb, len(new), M)[:3]
         f = np.stack([np.ones_like(po), np.sin(po), np.cos(po), np.sin(po) ** 2], -1)
         W = [w] + ([] if fw is None else [fw[:, 0, c] for c in range(fw.shape[2])])
@@ -317,7 +364,7 @@ def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes):
             cache[i] = (rows, cen[j], even[j], mom[j])
 
     nodes = list(range(0, G + 1, 1 << levels))
-    traced(nodes)
+    traced(nodes, keep=True)
     worst = 0.0
     while True:
         tests, owner = [], []
@@ -356,11 +403,22 @@ def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes):
     return np.array(nodes), cache, worst
 
 
-def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1):
+def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     """Basis [K, NT, C] and coefficients [S, M / group, K, C] of Y(θo) = ρs / ρm per group of ``group``
-    φi bins (mass-weighted SVD)."""
+    φi bins (mass-weighted SVD).  ``known`` [S]: exit records of nodes traced already at these θo samples
+    (``_phi_nodes``' ``records``; None: trace that node)."""
     th = theta_of_coordinate(np.linspace(0.0, 1.0, NT))
-    smp, po, w, nb, fw = exact_slice(profile, phi, fresnel, th)
+    known = [None] * phi.size if known is None else list(known)
+    todo = [s for s in range(phi.size) if known[s] is None]
+    if todo:
+        t_smp, t_po, t_w, t_nb, t_fw = exact_slice(profile, phi[todo], fresnel, th)
+        order = np.argsort(t_smp, kind="stable")
+        cuts = np.searchsorted(t_smp[order], np.arange(len(todo) + 1))
+        for j, s in enumerate(todo):
+            sel = order[cuts[j]:cuts[j + 1]]
+            known[s] = (t_po[sel], t_w[sel], t_nb[sel], t_fw[sel])
+    smp = np.concatenate([np.full(r[0].size, s, np.int64) for s, r in enumerate(known)])
+    po, w, nb, fw = (np.concatenate([r[q] for r in known]) for q in range(4))
     mass_b, _, _, fm_b = _bin_rows(smp, po, w, nb, phi.size, M, fw)                   # fm [S, M, T, C]
     S, C = phi.size, fm_b.shape[-1]
     Mg = M // group
@@ -425,7 +483,10 @@ def view_slices(profile: Profile, resolution: int = 256, fresnel=None, *, base: 
     M = int(resolution)
 
     def compute():
-        idx, traced, worst = _phi_nodes(profile, M, int(base), int(levels), float(tol_phi), fresnel, int(max_nodes))
+        th = theta_of_coordinate(np.linspace(0.0, 1.0, int(theta_samples)))
+        records = {}   # exit records of the start nodes at every θo sample (reused by the θo basis)
+        idx, traced, worst = _phi_nodes(profile, M, int(base), int(levels), float(tol_phi), fresnel, int(max_nodes),
+                                        th, records)
         G = int(base) << int(levels)
         phi = -0.5 * np.pi + idx * (np.pi / G)
         rows = [traced[int(i)] for i in idx]
@@ -438,7 +499,7 @@ def view_slices(profile: Profile, resolution: int = 256, fresnel=None, *, base: 
         err_theta = 0.0
         if fresnel is not None:
             B, coef, err_theta = _theta_basis(profile, fresnel, phi, M, int(theta_samples), float(tol_theta),
-                                              int(max_rank), int(y_group))
+                                              int(max_rank), int(y_group), [records.get(int(i)) for i in idx])
             out.update(coef=coef, basis=B)
         lost = float(np.max(1.0 - mass.sum(1)))
         out["errors"] = np.array([worst, err_theta, max(lost, 0.0)])
