@@ -35,14 +35,27 @@ def setups(only: str = ""):
     """(name, factory(materials, presets, scratch_material) -> material) of the profiled set-ups."""
     from bench import scratch_cost
 
-    def scratch(n_layers, cost_off=0, density=None):
+    def scratch(n_layers, cost_off=0, density=None, race=None):
         def make(materials, presets, sm):
+            if race is not None:   # force the layer race on (True) or off (False) for this build
+                from scratch_materials.node_groups import scratch_svm
+
+                old = scratch_svm.races
+                scratch_svm.races = lambda lobe_data, layers: bool(race) and layers is not None and "cdf" in lobe_data
+                try:
+                    return make.inner(materials, presets, sm)
+                finally:
+                    scratch_svm.races = old
+            return make.inner(materials, presets, sm)
+
+        def inner(materials, presets, sm):
             fig1c = dict(presets.get("fig1c_scratched").params)
             layers = dict(fig1c["layers"], n_layers=n_layers)
             if density is not None:
                 layers["density"] = density
             mat = materials.new_material(f"S{n_layers}.{cost_off}.{density}")
             return sm.build(mat, sm.validate(**dict(fig1c, layers=layers)), cost_off=cost_off)
+        make.inner = inner
         return make
 
     def baseline(materials, presets, sm):
@@ -56,7 +69,8 @@ def setups(only: str = ""):
         return mat
 
     rows = [("baseline: SVM aniso Glossy (MS GGX)", baseline), ("base only (Metallic, iron)", base_only),
-            ("svm 4 layers", scratch(4)), ("svm 16 layers", scratch(16))]
+            ("svm 4 layers", scratch(4)), ("svm 16 layers", scratch(16)),
+            ("svm 4 layers, race", scratch(4, race=True)), ("svm 16 layers, no race", scratch(16, race=False))]
     rows += [(f"svm 4 layers - {stage}", scratch(4, cost_off=bit)) for stage, bit in scratch_cost.STAGES.items()
              if bit != 2]
     rows.append(("svm 4 layers, all culled (d = 1e-5)", scratch(4, density=1e-5)))
@@ -264,13 +278,20 @@ def main(argv: list[str]) -> int:
             futures = {name: pool.submit(callgrind, path, a.top) for name, path in built}
         results = {name: f.result() for name, f in futures.items()}
     base = results[built[0][0]][0]
-    rows = [(name, total / n_samples, total / base) for name, (total, _f) in results.items()]
+    none = results.get("micro: none", (None,))[0]
+
+    def per_node(name, total):
+        if not name.startswith("micro: ") or none is None or name == "micro: none" or total <= 0:
+            return ""
+        return f"{(total - none) / n_samples / MICRO_N:.0f}"
+
+    rows = [(name, total / n_samples, total / base, per_node(name, total)) for name, (total, _f) in results.items()]
     detail = []
     for name, (total, funcs) in results.items():
         detail.append(f"\n{name}: " + "; ".join(f"{f} {100 * ir / total:.0f} %" for ir, f in funcs if ir > 0.01 * total))
     notes = (f"callgrind (valgrind), {a.res[0]}x{a.res[1]} px, {a.spp} spp, one render thread; instructions (Ir) "
              f"counted inside {TOGGLE.rstrip('*')} only (no scene sync); 'Ir per sample' = total / "
-             f"(pixels x spp); ratio against the baseline.  Deterministic: independent of the machine's load.\n"
+             f"(pixels x spp); ratio against the baseline; 'Ir per node (micro)' = (micro - micro: none) / (pixels x spp x {MICRO_N}): one node of that kind per shading point (a Math node with a constant operand loads it with one more SVM node, NODE_VALUE_F, as every unlinked input it reads, used or not).  Deterministic: independent of the machine's load.\n"
              "Self cost of the top functions (share of the set-up's instructions):" + "".join(detail))
-    report(a.out, ["setup", "Ir per sample", "ratio"], rows, notes)
+    report(a.out, ["setup", "Ir per sample", "ratio", "Ir per node (micro)"], rows, notes)
     return 0
