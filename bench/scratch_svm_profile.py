@@ -285,13 +285,17 @@ def main(argv: list[str]) -> int:
             return ""
         return f"{(total - none) / n_samples / MICRO_N:.0f}"
 
-    rows = [(name, total / n_samples, total / base, per_node(name, total)) for name, (total, _f) in results.items()]
+    rows = [(name, total / n_samples, total / base, per_node(name, total)) for name, (total, _f) in results.items()
+            if total > 0]
+    missing = [name for name, (total, _f) in results.items() if total <= 0]
     detail = []
     for name, (total, funcs) in results.items():
         detail.append(f"\n{name}: " + "; ".join(f"{f} {100 * ir / total:.0f} %" for ir, f in funcs if ir > 0.01 * total))
     notes = (f"callgrind (valgrind), {a.res[0]}x{a.res[1]} px, {a.spp} spp, one render thread; instructions (Ir) "
              f"counted inside {TOGGLE.rstrip('*')} only (no scene sync); 'Ir per sample' = total / "
              f"(pixels x spp); ratio against the baseline; 'Ir per node (micro)' = (micro - micro: none) / (pixels x spp x {MICRO_N}): one node of that kind per shading point (a Math node with a constant operand loads it with one more SVM node, NODE_VALUE_F, as every unlinked input it reads, used or not).  Deterministic: independent of the machine's load.\n"
-             "Self cost of the top functions (share of the set-up's instructions):" + "".join(detail))
+             + (f"Not measured (the valgrind run did not finish): {', '.join(missing)}.\n" if missing else "")
+             + "Self cost of the top functions (share of the set-up's instructions):" + "".join(
+                 d for d in detail if not any(d.startswith(f"\n{m}:") for m in missing)))
     report(a.out, ["setup", "Ir per sample", "ratio", "Ir per node (micro)"], rows, notes)
     return 0

@@ -27,8 +27,9 @@ where no layer covers the point), the whole layer system behind the cull switch 
 material costs its base).  What a node costs (``bench/scratch_svm_profile.py``, callgrind instructions per shading
 point; the baseline's whole sample is ~4,800): every node is one SVM instruction (~47) plus one more (~18) for each
 unlinked input it reads, used or not (a Math node reads three: ~65 with both operands linked, ~83 with a constant
-operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image lookup ~170, a Mapping node ~300
-(it turns its Euler rotation into a matrix per sample).  A layer therefore costs ~1,100 (Mapping, Voronoi) plus
+operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image lookup ~170, a Mapping node ~350
+(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260.  A layer
+therefore costs ~1,100 (Mapping, Voronoi) plus
 ~280 of pick bookkeeping, and four layers alone are ~1.1x the baseline's sample: the 1.3x goal at 4 layers is out of
 reach of any graph that tests every layer's coverage with a Voronoi node.  Constants that depend only on the tables
 live in the images (the C image holds the tilt's affine terms: two Math nodes)."""
@@ -72,8 +73,12 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
                 continue
             kind, k = parts[1], int(parts[2])
             theta, xi = float(theta_k[k]), (float(xi_k[k][0]), float(xi_k[k][1]))
-            if kind in ("race_rot", "race_off"):
-                if not race:
+            if kind == "race_par":
+                if "par" not in race:
+                    race["par"] = race_params_image(theta_k, xi_k)
+                node.image = race["par"]
+            elif kind in ("race_rot", "race_off"):   # race positions built before the parameters image
+                if "images" not in race:
                     race["images"] = race_images(theta_k, xi_k)
                 node.image = race["images"][1 if kind == "race_rot" else 2]
             elif kind == "map":
@@ -350,10 +355,22 @@ def race_orders(n_layers: int) -> np.ndarray:
     return np.argsort(rng.random((RACE_ORDERS, n_layers)), axis=1)
 
 
+def race_params_image(theta_k, xi_k) -> bpy.types.Image:
+    """The layer parameters of ``_layer_race`` by race row and position: RGB = (ξx, ξy, Θ) of eq. 7 for layer
+    ``race_orders(N)[r, i]`` at row r, column i: one lookup per race position (the layers' parameters are per
+    material, so is this image: [P, N], 2048 x 16 texels at 16 layers, 0.4 MB before compression)."""
+    order = race_orders(len(theta_k))
+    xi = np.asarray(xi_k, np.float64)
+    p = np.zeros(order.shape + (4,))
+    p[..., 0], p[..., 1], p[..., 2] = xi[order, 0], xi[order, 1], np.asarray(theta_k, np.float64)[order]
+    return _data_image("Scratch layer race", p, alpha=False)
+
+
 def race_images(theta_k, xi_k) -> tuple:
     """Images of ``_layer_race``: the orders (``race_orders``; RGB = (k + 1/2) / N, 1/2, 0 of the k-th layer, the
     coordinate of layer k in the constants images), the rotations (RGB = (0, 0, Θ_k), A = Θ_k: the Mapping
-    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7."""
+    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7.  Race positions built before
+    ``race_params_image`` read these (``set_layer_constants`` still writes them)."""
     n = len(theta_k)
     order = race_orders(n)
     o = np.zeros(order.shape + (4,))
@@ -418,8 +435,9 @@ _RACE_INPUTS = (("Position", "NodeSocketFloat"), ("UV", "NodeSocketVector"), ("S
 def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.types.NodeTree:
     """One position of ``_layer_race`` as a node group: Mix(α, Rest, ρ) of the layer the order image names at
     column ``Position`` (the layer's rotation and offset from the constants images, eq. 7; F1 below the
-    density threshold; the layer's table lobe).  Its two constants-image nodes carry the ``race_rot`` /
-    ``race_off`` tags of ``set_layer_constants``; the table nodes the tags of ``apply_tables``."""
+    density threshold; the layer's table lobe).  The layer's rotation and offset come from one lookup in
+    ``race_params_image`` (row floor(h_layer P), column Position), whose node carries the ``race_par`` tag of
+    ``set_layer_constants``; the table nodes the tags of ``apply_tables``."""
     from . import add_socket
 
     grp = bpy.data.node_groups.new(f"{name}.scratch race", "ShaderNodeTree")
@@ -431,26 +449,26 @@ def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.t
     gi = gg.node("NodeGroupInput")
     go = gg.node("NodeGroupOutput")
     inp = gi.outputs
-    img_order, img_rot, img_off = race_images(theta_k, xi_k)
 
     def tex(img, vector):
         node = gg.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
         gg._set(node.inputs["Vector"], vector)
         return node
 
-    # row floor(h_layer P), column Position of the order image: the layer at this position
-    at = tex(img_order, gg.combine(gg.math("MULTIPLY_ADD", inp["Position"], 1.0 / n, 0.5 / n),
-                                   inp["h_layer"])).outputs["Color"]
-    rot, off = tex(img_rot, at), tex(img_off, at)
-    rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/0", f"{twin}/race_off/0"
+    # row floor(h_layer P), column Position: (ξx, ξy, Θ) of the layer at this position
+    par = tex(race_params_image(theta_k, xi_k), gg.combine(gg.math("MULTIPLY_ADD", inp["Position"], 1.0 / n, 0.5 / n),
+                                                          inp["h_layer"]))
+    par[LAYER_CONST] = f"{twin}/race_par/0"
+    c = par.outputs["Color"]
     m = gg.node("ShaderNodeMapping", vector_type="TEXTURE")
     gg._set(m.inputs["Vector"], inp["UV"])
-    gg._set(m.inputs["Rotation"], rot.outputs["Color"])
+    gg._set(m.inputs["Rotation"], gg.vmath("MULTIPLY", c, (0.0, 0.0, 1.0)))   # (0, 0, Θ)
     gg._set(m.inputs["Scale"], inp["Size"])
-    y = gg.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
+    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read
+    y = gg.vmath("ADD", m.outputs["Vector"], c)
     alpha = gg.math("LESS_THAN", _feature_distance(gg, y, cost_off), inp["Threshold"])  # [F1]_d, eq. 7
     tint_in = inp["Tint"] if isinstance(tint, bpy.types.NodeSocket) else tint
-    lobe = _frame_lobe(gg, lobe_data, name, rot.outputs["Alpha"], inp["Normal"], inp["Incoming"], inp["Tangent"],
+    lobe = _frame_lobe(gg, lobe_data, name, gg.separate(c)[2], inp["Normal"], inp["Incoming"], inp["Tangent"],
                        inp["h_slice"], inp["h_lobe"], inp["h_frac"], tint_in, cost_off)
     mix = gg.node("ShaderNodeMixShader")
     gg._set(mix.inputs["Fac"], alpha)
