@@ -307,9 +307,12 @@ def race_visits(n_layers: int, density: float) -> float:
 
 def races(lobe_data: dict, layers) -> bool:
     """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
-    than one layer and a race that visits fewer than half the layers (``race_visits``): a race position costs
-    about twice a layer of the picked-layer graph (measured, bench/scratch_cost: 0.29x vs 0.15x the baseline;
-    fig1c 16 layers at d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).
+    than one layer and a race that visits fewer than half the layers (``race_visits``; fig1c 16 layers at
+    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  Since a race position
+    reads its layer with one lookup (``race_params_image``) a visit costs about what a layer of the picked-layer
+    graph costs with its pick (callgrind, bench/scratch_svm_profile: fig1c 4 layers 13,401 instructions per sample
+    as a race, 13,590 picked, 1.4 % apart); the half-the-layers rule stays because a race material also syncs a lobe
+    per position and an EEVEE twin (scene sync, bench/scratch_scale).
     The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
     if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
         return False
