@@ -94,6 +94,7 @@ def main(argv: list[str]) -> int:
                 trees = [m.node_tree for m in bpy.data.materials if m.node_tree] + list(bpy.data.node_groups)
                 n_bytecode = sum(1 for tr in trees for nd in tr.nodes if nd.bl_idname == "ShaderNodeScript" and nd.bytecode)
                 n_nodes = sum(len(tr.nodes) for tr in trees)
+                n_inlined = sum(_inlined(m.node_tree) for m in bpy.data.materials if m.node_tree)
                 img_path = os.path.join(tmp, "images.blend")
                 bpy.data.libraries.write(img_path, set(bpy.data.images), compress=True)
                 image_mb = os.path.getsize(img_path) / 1e6
@@ -106,7 +107,9 @@ def main(argv: list[str]) -> int:
             for _ in range(a.repeats):
                 for osl in paths:
                     scene.cycles.shading_system = osl
+                    c0 = time.process_time()
                     t[(scratch, osl)].append(render.render_array(scene, tmp, "scale")[1])
+                    t.setdefault((scratch, osl, "cpu"), []).append(time.process_time() - c0)
             if a.no_osl:
                 continue
             # Persistent Data (OSL): Cycles keeps its session between renders and re-syncs what changed
@@ -120,15 +123,32 @@ def main(argv: list[str]) -> int:
         rows.append((n, n_texts, text_mb, n_bytecode, n_nodes, scratch_build, image_mb, sizes[True] - sizes[False],
                      med[(True, True)] - med[(False, True)] if not a.no_osl else nan,
                      med[(True, "persistent")] - med[(False, "persistent")] if not a.no_osl else nan,
-                     med[(True, False)] - med[(False, False)], med[(False, False)]))
+                     med[(True, False)] - med[(False, False)], med[(True, False, "cpu")] - med[(False, False, "cpu")],
+                     n_inlined, med[(False, False)]))
         loads.append(os.getloadavg()[0])
     report("scratch_scale", ["materials", "distinct OSL texts", "OSL text MB", "bytecode copies", "nodes",
                              "build s", "image MB", ".blend MB added", "OSL sync s added", "OSL persistent s added",
-                             "SVM sync s added", "baseline SVM t(1 spp) s"],
+                             "SVM sync s added", "SVM sync CPU s added", "nodes Cycles syncs",
+                             "baseline SVM t(1 spp) s"],
            rows,
            f"Grid of N planes, the 10 scratch presets in turn, repeats with another tint; 64x64 px, 1 spp, CPU; "
            f"medians of {a.repeats} renders after a warm-up render (per frame, as in an animation), scratch and "
            f"baseline grids in one process; load (1 min) after each grid size {', '.join(f'{x:.1f}' for x in loads)} "
            f"on {os.cpu_count()} cores shared with other jobs (wall times: the sync columns grow with the load)."
-           + (" OSL columns not run (--no-osl)." if a.no_osl else ""))
+           + (" OSL columns not run (--no-osl)." if a.no_osl else "")
+           + " 'SVM sync CPU s added': the same difference in CPU time of the process (all threads; less sensitive to "
+             "the other jobs' load than wall time).  'nodes Cycles syncs': the materials' nodes with every group "
+             "node replaced by its group's nodes (Blender hands Cycles each group instance inlined; the race "
+             "positions are instances of one group).")
     return 0
+
+
+def _inlined(tree) -> int:
+    """Nodes of ``tree`` with each group node counted as the (recursively inlined) nodes of its group."""
+    n = 0
+    for node in tree.nodes:
+        if node.bl_idname == "ShaderNodeGroup" and node.node_tree is not None:
+            n += _inlined(node.node_tree)
+        else:
+            n += 1
+    return n

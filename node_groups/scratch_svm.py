@@ -21,13 +21,18 @@ Same model as ``osl/scratch_svbrdf.py`` with these differences (measured in
 Cost (``bench/scratch_cost.py``, whole frame, per sample, against the SVM anisotropic Glossy): Cycles' SVM
 runs every node that feeds the output, except the nodes that feed only one input of a Mix Shader whose
 factor is linked: those are skipped when the factor selects the other input (``SVMCompiler::
-generate_multi_closure``: NODE_JUMP_IF_ZERO / NODE_JUMP_IF_ONE).  So the graph keeps the per-sample work
-behind Mix Shaders: the scratch closure and its lookups behind min(ᾱ, 1) (not run where no layer covers
-the point), the whole layer system behind the cull switch [d >= CULL_DENSITY] (a culled material costs its
-base).  What stays is per layer one Mapping and one Voronoi node (~0.03x and ~0.13x the baseline: the
-Voronoi's 9 hashed cells dominate) and four Math nodes (~0.01x each), and per sample about 45 nodes for the
-frame, the table lookups and the tilt (images hold what can be precomputed per bin).
-"""
+generate_multi_closure``: NODE_JUMP_IF_ZERO / NODE_JUMP_IF_ONE, taken when the factor is exactly 0 / 1).  So the
+graph keeps the per-sample work behind Mix Shaders: the scratch closure and its lookups behind min(ᾱ, 1) (not run
+where no layer covers the point), the whole layer system behind the cull switch [d >= CULL_DENSITY] (a culled
+material costs its base).  What a node costs (``bench/scratch_svm_profile.py``, callgrind instructions per shading
+point; the baseline's whole sample is ~4,800): every node is one SVM instruction (~47) plus one more (~18) for each
+unlinked input it reads, used or not (a Math node reads three: ~65 with both operands linked, ~83 with a constant
+operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image lookup ~170, a Mapping node ~350
+(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260.  A layer
+therefore costs ~1,100 (Mapping, Voronoi) plus
+~280 of pick bookkeeping, and four layers alone are ~1.1x the baseline's sample: the 1.3x goal at 4 layers is out of
+reach of any graph that tests every layer's coverage with a Voronoi node.  Constants that depend only on the tables
+live in the images (the C image holds the tilt's affine terms: two Math nodes)."""
 from __future__ import annotations
 
 import math
@@ -68,8 +73,12 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
                 continue
             kind, k = parts[1], int(parts[2])
             theta, xi = float(theta_k[k]), (float(xi_k[k][0]), float(xi_k[k][1]))
-            if kind in ("race_rot", "race_off"):
-                if not race:
+            if kind == "race_par":
+                if "par" not in race:
+                    race["par"] = race_params_image(theta_k, xi_k)
+                node.image = race["par"]
+            elif kind in ("race_rot", "race_off"):   # race positions built before the parameters image
+                if "images" not in race:
                     race["images"] = race_images(theta_k, xi_k)
                 node.image = race["images"][1 if kind == "race_rot" else 2]
             elif kind == "map":
@@ -187,14 +196,15 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     t = tan.outputs["Tangent"]
     table = "cdf" in lobe_data
 
-    # per-sample random numbers (P jitters per sample, as in the OSL path): the slice, layer and lobe
-    # numbers are the three channels of one hash; the aim inside a table bin a second hash
-    w_hash = g.vmath("DOT_PRODUCT", wo, (12.9898, 78.233, 37.719))
-
+    # per-sample random numbers: P jitters per sample (pixel filter, lens, bounce), so a hash of P alone is a new
+    # number per sample (the OSL path also hashes the view direction: one Vector Math node more per shading point
+    # here, ~70 instructions, bench/scratch_svm_profile); the slice, layer and lobe numbers are the three channels
+    # of one 3D hash, a further number (the aim inside a table bin, the box jitter) a 4D hash with a constant W
     def noise(offset, channels=False):
-        wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D")
+        wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D" if offset else "3D")
         g._set(wn.inputs["Vector"], geo.outputs["Position"])
-        g._set(wn.inputs["W"], g.math("ADD", w_hash, offset) if offset else w_hash)
+        if offset:
+            wn.inputs["W"].default_value = float(offset)
         return g.separate(wn.outputs["Color"]) if channels else wn.outputs["Value"]
 
     h_slice, h_layer, h_lobe = noise(0.0, channels=True)
@@ -297,9 +307,12 @@ def race_visits(n_layers: int, density: float) -> float:
 
 def races(lobe_data: dict, layers) -> bool:
     """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
-    than one layer and a race that visits fewer than half the layers (``race_visits``): a race position costs
-    about twice a layer of the picked-layer graph (measured, bench/scratch_cost: 0.29x vs 0.15x the baseline;
-    fig1c 16 layers at d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).
+    than one layer and a race that visits fewer than half the layers (``race_visits``; fig1c 16 layers at
+    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  Since a race position
+    reads its layer with one lookup (``race_params_image``) a visit costs about what a layer of the picked-layer
+    graph costs with its pick (callgrind, bench/scratch_svm_profile: fig1c 4 layers 13,401 instructions per sample
+    as a race, 13,590 picked, 1.4 % apart); the half-the-layers rule stays because a race material also syncs a lobe
+    per position and an EEVEE twin (scene sync, bench/scratch_scale).
     The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
     if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
         return False
@@ -345,10 +358,22 @@ def race_orders(n_layers: int) -> np.ndarray:
     return np.argsort(rng.random((RACE_ORDERS, n_layers)), axis=1)
 
 
+def race_params_image(theta_k, xi_k) -> bpy.types.Image:
+    """The layer parameters of ``_layer_race`` by race row and position: RGB = (ξx, ξy, Θ) of eq. 7 for layer
+    ``race_orders(N)[r, i]`` at row r, column i: one lookup per race position (the layers' parameters are per
+    material, so is this image: [P, N], 2048 x 16 texels at 16 layers, 0.4 MB before compression)."""
+    order = race_orders(len(theta_k))
+    xi = np.asarray(xi_k, np.float64)
+    p = np.zeros(order.shape + (4,))
+    p[..., 0], p[..., 1], p[..., 2] = xi[order, 0], xi[order, 1], np.asarray(theta_k, np.float64)[order]
+    return _data_image("Scratch layer race", p, alpha=False)
+
+
 def race_images(theta_k, xi_k) -> tuple:
     """Images of ``_layer_race``: the orders (``race_orders``; RGB = (k + 1/2) / N, 1/2, 0 of the k-th layer, the
     coordinate of layer k in the constants images), the rotations (RGB = (0, 0, Θ_k), A = Θ_k: the Mapping
-    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7."""
+    node's rotation and the frame angle) and the offsets (RGB = ξ_k) of eq. 7.  Race positions built before
+    ``race_params_image`` read these (``set_layer_constants`` still writes them)."""
     n = len(theta_k)
     order = race_orders(n)
     o = np.zeros(order.shape + (4,))
@@ -413,8 +438,9 @@ _RACE_INPUTS = (("Position", "NodeSocketFloat"), ("UV", "NodeSocketVector"), ("S
 def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.types.NodeTree:
     """One position of ``_layer_race`` as a node group: Mix(α, Rest, ρ) of the layer the order image names at
     column ``Position`` (the layer's rotation and offset from the constants images, eq. 7; F1 below the
-    density threshold; the layer's table lobe).  Its two constants-image nodes carry the ``race_rot`` /
-    ``race_off`` tags of ``set_layer_constants``; the table nodes the tags of ``apply_tables``."""
+    density threshold; the layer's table lobe).  The layer's rotation and offset come from one lookup in
+    ``race_params_image`` (row floor(h_layer P), column Position), whose node carries the ``race_par`` tag of
+    ``set_layer_constants``; the table nodes the tags of ``apply_tables``."""
     from . import add_socket
 
     grp = bpy.data.node_groups.new(f"{name}.scratch race", "ShaderNodeTree")
@@ -426,26 +452,26 @@ def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.t
     gi = gg.node("NodeGroupInput")
     go = gg.node("NodeGroupOutput")
     inp = gi.outputs
-    img_order, img_rot, img_off = race_images(theta_k, xi_k)
 
     def tex(img, vector):
         node = gg.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
         gg._set(node.inputs["Vector"], vector)
         return node
 
-    # row floor(h_layer P), column Position of the order image: the layer at this position
-    at = tex(img_order, gg.combine(gg.math("MULTIPLY_ADD", inp["Position"], 1.0 / n, 0.5 / n),
-                                   inp["h_layer"])).outputs["Color"]
-    rot, off = tex(img_rot, at), tex(img_off, at)
-    rot[LAYER_CONST], off[LAYER_CONST] = f"{twin}/race_rot/0", f"{twin}/race_off/0"
+    # row floor(h_layer P), column Position: (ξx, ξy, Θ) of the layer at this position
+    par = tex(race_params_image(theta_k, xi_k), gg.combine(gg.math("MULTIPLY_ADD", inp["Position"], 1.0 / n, 0.5 / n),
+                                                          inp["h_layer"]))
+    par[LAYER_CONST] = f"{twin}/race_par/0"
+    c = par.outputs["Color"]
     m = gg.node("ShaderNodeMapping", vector_type="TEXTURE")
     gg._set(m.inputs["Vector"], inp["UV"])
-    gg._set(m.inputs["Rotation"], rot.outputs["Color"])
+    gg._set(m.inputs["Rotation"], gg.vmath("MULTIPLY", c, (0.0, 0.0, 1.0)))   # (0, 0, Θ)
     gg._set(m.inputs["Scale"], inp["Size"])
-    y = gg.vmath("ADD", m.outputs["Vector"], off.outputs["Color"])         # eq. 7: S^-1 R(Θ) (u, v) + ξ
+    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read
+    y = gg.vmath("ADD", m.outputs["Vector"], c)
     alpha = gg.math("LESS_THAN", _feature_distance(gg, y, cost_off), inp["Threshold"])  # [F1]_d, eq. 7
     tint_in = inp["Tint"] if isinstance(tint, bpy.types.NodeSocket) else tint
-    lobe = _frame_lobe(gg, lobe_data, name, rot.outputs["Alpha"], inp["Normal"], inp["Incoming"], inp["Tangent"],
+    lobe = _frame_lobe(gg, lobe_data, name, gg.separate(c)[2], inp["Normal"], inp["Incoming"], inp["Tangent"],
                        inp["h_slice"], inp["h_lobe"], inp["h_frac"], tint_in, cost_off)
     mix = gg.node("ShaderNodeMixShader")
     gg._set(mix.inputs["Fac"], alpha)
@@ -629,10 +655,10 @@ def table_images(name: str, lobe_data: dict) -> dict:
     - ``A`` [S, M] (rows = φo nodes): the bins' alias table (``lobe_table.alias_table``): R = prob_j,
       G = alias_j - j, B = the node's total P;
     - ``C`` [S, M] (rows = φo nodes), bin b of node s with exit centroid c, half spread h = min(c, 1 - c)
-      and sign σ = +1 for odd bounces (mirror-like), -1 for even ones (retro-like): R = b + c - h,
-      G = 2 h, B = -σ / 2, A = σ φ_s / 2 (the tilt is then (R + G ξ) π / 2M - π/4 + φo / 2 + B φo + A);
+      and sign σ = +1 for odd bounces (mirror-like), -1 for even ones (retro-like): R = (b + c - h) π / 2M - π/4
+      + σ φ_s / 2, G = 2 h π / 2M, B = (1 - σ) / 2, A = 0 (the tilt is then R + G ξ + B φo: two Math nodes);
     - lossy only: ``Y`` [S, NT M / y_group] RGB = ``theta_factor``.
-    Images are shared by content (``_data_image``); N, A and Y are RGB images (the shader reads their Color only).
+    Images are shared by content (``_data_image``); all are RGB images (the shader reads their Color only).
     """
     from ..precompute.scratch.lobe_table import alias_table
 
@@ -655,10 +681,12 @@ def table_images(name: str, lobe_data: dict) -> dict:
     hw = np.minimum(ce, 1.0 - ce)
     sigma = 1.0 - 2.0 * even
     c = np.zeros((S, M, 4))
-    c[..., 0], c[..., 1] = np.arange(M) + ce - hw, 2.0 * hw
-    c[..., 2], c[..., 3] = -0.5 * sigma, 0.5 * sigma * phi[:, None]
+    k = np.pi / (2 * M)
+    c[..., 0] = (np.arange(M) + ce - hw) * k - np.pi / 4 + 0.5 * sigma * phi[:, None]
+    c[..., 1], c[..., 2] = 2.0 * hw * k, 0.5 - 0.5 * sigma
     out = {"N": _data_image(TABLE_IMAGE_PREFIX + "N", n, alpha=False),
-           "A": _data_image(TABLE_IMAGE_PREFIX + "A", a, alpha=False), "C": _data_image(TABLE_IMAGE_PREFIX + "C", c)}
+           "A": _data_image(TABLE_IMAGE_PREFIX + "A", a, alpha=False),
+           "C": _data_image(TABLE_IMAGE_PREFIX + "C", c, alpha=False)}
     if lobe_data.get("basis") is not None:
         out["Y"] = _data_image(TABLE_IMAGE_PREFIX + "Y", theta_factor(lobe_data), alpha=False)
     return out
@@ -687,7 +715,7 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     (odd bounces mirror-like, even retro-like; the spread inside the bin drawn with ``h_frac``), a narrow GGX
     Glossy tilted halfway between φo and the exit, colour P Y_b(θo) (Y = 1 lossless, else Σ_k coef B_k(v),
     v = 1 - sqrt(cos θo)).  The images (``table_images``) hold what can be precomputed per bin, so a sample
-    costs 4 lookups and 20 Math nodes.  ``cost_off`` bits 4 / 8 as in ``build``."""
+    costs 3 lookups and 12 Math nodes lossless, 4 and 17 lossy (19 when bins share θo coefficients).  ``cost_off`` bits 4 / 8 as in ``build``."""
     imgs = table_images(name, lobe_data)
     cdf = lobe_data["cdf"]
     S, M = cdf.shape[0], cdf.shape[1] - 1
@@ -701,7 +729,11 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
 
     # node interval of phi_o (EXTEND clamps the cell), then one of its two nodes with the linear weight:
     # the upper one when φ_k + h (φ_k+1 - φ_k) < φo
-    row_k, pa, dp = g.separate(fetch(imgs["N"], g.math("MULTIPLY_ADD", phi_o, 1.0 / _PI, 0.5), 0.5).outputs["Color"])
+    # N has one row: the lookup takes the float itself (Cycles converts it to (x, x, x); EXTEND keeps y in row 0),
+    # one conversion instead of a Combine XYZ (four SVM nodes more per shading point)
+    n_tex = g.node("ShaderNodeTexImage", image=imgs["N"], interpolation="Closest", extension="EXTEND")
+    g._set(n_tex.inputs["Vector"], g.math("MULTIPLY_ADD", phi_o, 1.0 / _PI, 0.5))
+    row_k, pa, dp = g.separate(n_tex.outputs["Color"])
     up = g.math("LESS_THAN", g.math("MULTIPLY_ADD", h_slice, dp, pa), phi_o)
     row = g.math("MULTIPLY_ADD", up, 1.0 / S, row_k)
     row.node[TABLE_ROWS] = True   # its 1/S is rewritten when an in-place table update changes S
@@ -716,11 +748,9 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
         lo = g.math("MULTIPLY_ADD", take, d_alias, j)
     c0 = fetch(imgs["C"], g.math("MULTIPLY_ADD", lo, 1.0 / M, 0.5 / M), row)
     a0, a1, b_phi = g.separate(c0.outputs["Color"])
-    a_phi = c0.outputs["Alpha"]
     # exit = aim ± (φ_s - φo) (+ odd, - even bounces), aim = (lo + c + (2 ξ - 1) h) π / M - π/2; the lobe's
-    # tilt = (exit + φo) / 2 = (a0 + a1 ξ) π / 2M - π/4 + φo / 2 + b_phi φo + a_phi  (table_images)
-    r = g.math("ADD", g.math("MULTIPLY_ADD", b_phi, phi_o, a_phi), g.math("MULTIPLY_ADD", phi_o, 0.5, -_PI / 4))
-    tilt = g.math("MULTIPLY_ADD", g.math("MULTIPLY_ADD", a1, h_frac, a0), _PI / (2 * M), r)
+    # tilt = (exit + φo) / 2 = a0 + a1 ξ + b_phi φo with the constants folded into the C image (table_images)
+    tilt = g.math("MULTIPLY_ADD", b_phi, phi_o, g.math("MULTIPLY_ADD", a1, h_frac, a0))
     # the lobe normal cos(tilt) N + sin(tilt) v is N rotated about u by -tilt (v = N x u)
     rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE", invert=True)
     g._set(rot.inputs["Vector"], N)
@@ -737,7 +767,7 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
         # continuous column inside the bin group's NT samples: col = g NT + v (NT - 1), linear between samples
         cu = g.vmath("DOT_PRODUCT", wo, u)
         q = g.math("POWER", g.math("SUBTRACT", 1.0, g.math("MULTIPLY", cu, cu)), 0.25)
-        grp = g.math("FLOOR", g.math("MULTIPLY_ADD", lo, 1.0 / yg, 0.5 / yg))
+        grp = lo if yg == 1 else g.math("FLOOR", g.math("MULTIPLY_ADD", lo, 1.0 / yg, 0.5 / yg))
         x = g.math("MULTIPLY_ADD", grp, NT / n_cols, g.math("MULTIPLY_ADD", q, (1.0 - NT) / n_cols, (NT - 0.5) / n_cols))
         colour = fetch(imgs["Y"], x, row, "Linear").outputs["Color"]
     colour = _tinted(g, colour, tint)
@@ -750,7 +780,7 @@ def _table_lobe(g, lobe_data, name, phi_o, wo, h_slice, N, u, v, h, h_frac, tint
     g._set(glossy.inputs["Anisotropy"], aniso)
     g._set(glossy.inputs["Tangent"], u)
     if cost_off & 8:  # bench: no closure set-up (untilted white lobe; lo and the node kept alive)
-        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, a_phi), 1e-9, 1.0),
+        g._set(glossy.inputs["Roughness"], g.math("MULTIPLY", g.math("MULTIPLY_ADD", g.math("ADD", lo, a0), 1e-9, 1.0),
                                                   rough))
         return glossy.outputs[0]
     g._set(glossy.inputs["Color"], colour)

@@ -256,11 +256,11 @@ def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, mat):
     tags = {t for key in consts for t in key.split(";") if t.startswith("svm/")}
     # per layer: its Mapping (Θ, and ξ when the size is constant), the four factors of its Location -R_z(Θ) (l ξx, w ξy)
     # (live size; node_groups.scratch_svm.layer_coordinates) and its Θ in the pick; or, when the Cycles twin is a
-    # layer race (scratch_svm.races), the rotations and offsets image nodes of the race position's group
+    # layer race (scratch_svm.races), the parameters image node of the race position's group
     kinds = {t.split("/")[1] for t in tags}
-    race = {"race_rot", "race_off"}
+    race = {"race_par"}
     assert kinds in ({"map", "la", "lb", "lc", "ld", "theta2", "theta3"}, race), kinds
-    assert len(tags) == (2 if kinds == race else 6 * n), (n, sorted(tags))
+    assert len(tags) == (1 if kinds == race else 6 * n), (n, sorted(tags))
     mat.scratch.seed = 7
     mat.scratch.theta_deg = 40.0
     assert addon.live.last_update()["kind"] == "tables"

@@ -40,7 +40,7 @@ def _pixels(img):
 
 
 def test_rgb_table_images_render_as_rgba_and_survive_a_reload(addon, scene, render_dir, tmp_path):
-    """N, A, Y and the race's order / offset images are RGB (3/4 of the packed bytes): the SVM render equals the
+    """N, A, C, Y and the race's parameters image are RGB (3/4 of the packed bytes): the SVM render equals the
     render with RGBA copies (alpha 0, the old layout) exactly, and the reopened .blend holds the same RGB values
     and renders the same pixels (4-layer race, lossy iron: every table image role)."""
     import bpy
@@ -53,7 +53,7 @@ def test_rgb_table_images_render_as_rgba_and_survive_a_reload(addon, scene, rend
     nodes = _table_nodes(addon, mat)
     rgb = {n.image.name: n.image for n in nodes if n.image.depth == 96}
     roles = {name.split(" ")[2] for name in rgb}
-    assert {"N", "A", "Y", "orders", "offsets"} <= roles, roles
+    assert {"N", "A", "C", "Y", "race"} <= roles, roles
     before = {name: _pixels(img)[..., :3].copy() for name, img in rgb.items()}
     # RGBA copies (alpha 0): a shader reading an RGB image's alpha (1 in Blender's buffer) would render otherwise
     old = {n.as_pointer(): n.image for n in nodes}
