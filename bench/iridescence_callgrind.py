@@ -10,8 +10,10 @@ child renders 1 spp and N + 1 spp (``--repeat``: twice, every config's pair then
 
     instructions per sample = (Ir(N + 1 spp) − Ir(1 spp)) / N
 
-(scene sync, OSL JIT compilation and file output cancel; two repeats showed the count deterministic to
-<!-- filled below -->).  Instructions are not time (no cache misses, no division latency), but the two paths run the
+counting only the inclusive Ir of Cycles' ``PathTraceWorkCPU::render_samples_full_pipeline`` (the
+bpy module keeps its symbol table): scene building, sync, the OSL JIT and file output are left out
+(they vary by ~1e7 instructions between identical renders), the per-sample work is deterministic
+(two identical renders in one process: 11,511,265 and 11,511,387 Ir, 1e-5).  Instructions are not time (no cache misses, no division latency), but the two paths run the
 same Cycles kernel on the same pixels, so the ratio is a load-independent second opinion on the
 CPU-time ratios of ``iridescence_cost``.  OSL's LLVM JIT runs under valgrind (its default
 ``--smc-check=all-non-file`` sees the JIT's code).
@@ -23,7 +25,6 @@ the whole breakdown on the default set, the energy question on all three sets.  
 from __future__ import annotations
 
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -67,14 +68,26 @@ def _child(set_name: str, n: int, reps: int, names: list[str]) -> int:
     return 0
 
 
+#: Cycles' per-sample work on the CPU (path tracing of a tile, every kernel and shader it runs): its
+#: inclusive Ir excludes scene building, sync and the OSL JIT, whose instruction counts vary by ~1e7
+#: between identical renders.
+SAMPLE_FN = "ccl::PathTraceWorkCPU::render_samples_full_pipeline"
+
+
+def _inclusive_ir(path: Path, fn: str = SAMPLE_FN) -> int:
+    """Inclusive Ir of the function ``fn`` in one callgrind dump (via ``callgrind_annotate``; 0 if absent)."""
+    out = subprocess.run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(path)],
+                         capture_output=True, text=True, check=True).stdout
+    for line in out.splitlines():
+        if fn + "(" in line:
+            return int(line.split()[0].replace(",", ""))
+    return 0
+
+
 def _parts(prefix: str) -> list[int]:
-    """Ir of each dump part callgrind wrote (files ``prefix.<k>``, in order)."""
+    """Per-sample-work Ir (``SAMPLE_FN``) of each dump part callgrind wrote (files ``prefix.<k>``, in order)."""
     files = sorted(Path(prefix).parent.glob(Path(prefix).name + ".*"), key=lambda p: int(p.suffix[1:]))
-    out = []
-    for f in files:
-        m = re.search(r"^summary:\s*(\d+)", f.read_text(errors="replace"), re.M)
-        out.append(int(m.group(1)) if m else 0)
-    return out
+    return [_inclusive_ir(f) for f in files if f.suffix[1:].isdigit()]
 
 
 def run_set(set_name: str, n: int, reps: int, names: list[str], workdir: str) -> subprocess.Popen:
@@ -101,11 +114,38 @@ def per_sample(parts: list[int], names: list[str], n: int, reps: int) -> dict[st
     return res
 
 
+def write_report(results: dict, reps: int, load_note: str, extra_notes: str = "") -> str:
+    """``bench/out/iridescence_callgrind.md`` from {set: (N, {config: [Ir per sample, one per repeat]})}."""
+    from bench._util import report
+
+    rows = []
+    for s, (n, r) in results.items():
+        mean = {c: sum(v) / len(v) for c, v in r.items()}
+        for c, v in r.items():
+            rows.append([s, c, n + 1, f"{mean[c] / (RES[0] * RES[1]):.1f}",
+                         f"{abs(v[0] - v[1]) / mean[c] * 100:.3f}" if len(v) > 1 else "",
+                         f"{mean[c] / mean['base SVM']:.3f}" if "base SVM" in mean else "",
+                         f"{mean[c] / mean['base OSL']:.3f}" if "base OSL" in mean else "",
+                         f"{mean[c] / mean[PAPER]:.4f}" if PAPER in mean and c.startswith("layer A") else ""])
+    notes = (f"Instructions (valgrind callgrind: Ir of Cycles' {SAMPLE_FN}, inclusive) per pixel-sample = "
+             f"(Ir(render at N + 1 spp) − Ir(render at 1 spp)) / N / {RES[0] * RES[1]} pixels; the whole-frame sphere "
+             f"scene of iridescence_cost at {RES[0]}x{RES[1]}, one render thread, the configs of a set rendered in one "
+             f"valgrind process ({reps} repeat(s); with 2, 'repeat spread' = |difference| / mean).  × base SVM / × base "
+             "OSL: instruction ratio to the SVM anisotropic Glossy / to the same base on OSL; × eq. 6: to the layer "
+             f"with eq. 6's (1 − ρ) base weight (issue #17 item 5: energy weight / eq. 6 weight).  Load-independent; "
+             f"{load_note}.  {extra_notes}")
+    return report("iridescence_callgrind", ["set", "setup", "spp", "Ir / pixel-sample", "repeat spread %",
+                                            "× base SVM (Ir)", "× base OSL (Ir)", "× eq. 6 weight (Ir)"], rows, notes)
+
+
 def main(argv) -> int:
     if argv[:1] == ["--child"]:
         return _child(argv[1], int(argv[2]), int(argv[3]), argv[4:])
-    from bench._util import report
-
+    if argv[:1] == ["--parse"]:        # --parse PREFIX N CONFIG...: per-sample Ir of a child's dump parts
+        names = argv[3:]
+        for c, v in per_sample(_parts(argv[1]), names, int(argv[2]), 1).items():
+            print(f"{c}: {v[0] / (RES[0] * RES[1]):.1f} Ir per pixel-sample")
+        return 0
     if shutil.which("valgrind") is None:
         print("iridescence_callgrind: valgrind not found", file=sys.stderr)
         return 2
@@ -131,24 +171,7 @@ def main(argv) -> int:
             raise RuntimeError(f"valgrind child for set {s!r} failed (log {workdir}/{s}.log)")
         results[s] = per_sample(_parts(f"{workdir}/cg.{s}"), names, n, reps)
     load1 = os.getloadavg()
-    rows = []
-    for s, names in jobs:
-        r = results[s]
-        mean = {c: sum(v) / len(v) for c, v in r.items()}
-        for c in names:
-            spread = f"{abs(r[c][0] - r[c][1]) / mean[c] * 100:.2f}" if reps > 1 else ""
-            rows.append([s, c, f"{mean[c] / (RES[0] * RES[1]):.0f}", spread,
-                         f"{mean[c] / mean['base SVM']:.3f}" if "base SVM" in mean else "",
-                         f"{mean[c] / mean['base OSL']:.3f}" if "base OSL" in mean else ""])
-        rows.append([s, "energy weight / eq. 6 weight", "", "", f"{mean[ENERGY] / mean[PAPER]:.4f}", ""])
-    notes = (f"Instructions (valgrind callgrind, Ir) per pixel-sample: (Ir(render at {n + 1} spp) − Ir(render at 1 spp))"
-             f" / {n} / {RES[0] * RES[1]} pixels, the whole-frame sphere scene of iridescence_cost at {RES[0]}x{RES[1]}, "
-             f"one render thread, the configs of a set rendered in one valgrind process ({reps} repeat(s); with 2, "
-             "'repeat spread' = |difference| / mean of the two).  The last column of the energy row: the instruction "
-             "ratio energy weight / eq. 6 weight.  × base = instruction ratio to the SVM anisotropic Glossy (× base "
-             f"SVM) and to the same base on OSL (× base OSL).  Load-independent; machine load {load0[0]:.1f} / "
-             f"{load1[0]:.1f} (start / end) only affects wall time.")
-    report("iridescence_callgrind", ["set", "setup", "Ir / pixel-sample", "repeat spread %", "× base SVM (Ir)",
-                                     "× base OSL (Ir)"], rows, notes)
+    write_report({s: (n, results[s]) for s, _names in jobs}, reps,
+                 f"machine load {load0[0]:.1f} / {load1[0]:.1f} (start / end) only affects wall time")
     shutil.rmtree(workdir, ignore_errors=True)
     return 0
