@@ -115,13 +115,13 @@ def per_sample(parts: list[int], names: list[str], n: int, reps: int) -> dict[st
 
 
 def write_report(results: dict, reps: int, load_note: str, extra_notes: str = "") -> str:
-    """``bench/out/iridescence_callgrind.md`` from {set: (N, {config: [Ir per sample, one per repeat]})}."""
+    """``bench/out/iridescence_callgrind.md`` from {set: {config: (N, [Ir per sample, one per repeat])}}."""
     from bench._util import report
 
     rows = []
-    for s, (n, r) in results.items():
-        mean = {c: sum(v) / len(v) for c, v in r.items()}
-        for c, v in r.items():
+    for s, r in results.items():
+        mean = {c: sum(v) / len(v) for c, (_n, v) in r.items()}
+        for c, (n, v) in r.items():
             rows.append([s, c, n + 1, f"{mean[c] / (RES[0] * RES[1]):.1f}",
                          f"{abs(v[0] - v[1]) / mean[c] * 100:.3f}" if len(v) > 1 else "",
                          f"{mean[c] / mean['base SVM']:.3f}" if "base SVM" in mean else "",
@@ -171,7 +171,7 @@ def main(argv) -> int:
             raise RuntimeError(f"valgrind child for set {s!r} failed (log {workdir}/{s}.log)")
         results[s] = per_sample(_parts(f"{workdir}/cg.{s}"), names, n, reps)
     load1 = os.getloadavg()
-    write_report({s: (n, results[s]) for s, _names in jobs}, reps,
+    write_report({s: {c: (n, v) for c, v in results[s].items()} for s, _names in jobs}, reps,
                  f"machine load {load0[0]:.1f} / {load1[0]:.1f} (start / end) only affects wall time")
     shutil.rmtree(workdir, ignore_errors=True)
     return 0
