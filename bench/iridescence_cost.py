@@ -13,7 +13,8 @@ the generated source (no scratch in reach: grid lookup only; the candidates and 
 lobe (with the energy weight, KS 0 would let OSL's optimiser drop the candidate loop too: route A
 estimates E from its lobe); one candidate; eq. 6's weight; no base weight).
 
-Run: ``.venv/bin/python -m bench iridescence_cost [--quick]``.
+Run: ``.venv/bin/python -m bench iridescence_cost [--quick]``; ``--energy [rounds] [spp]``: the energy weight vs
+eq. 6's only, long renders, alternating order (``bench/out/iridescence_energy_cost.md``).
 """
 from __future__ import annotations
 
@@ -122,12 +123,14 @@ def per_sample_cost(render, build, n, tmp, name):
     return (cpu[n + 1] - cpu[1]) / n, (wall[n + 1] - wall[1]) / n
 
 
-def cost_table(render, im, sets, configs, *, n, rounds, res, tmp):
-    """Interleaved rounds over (set, config) rows; returns {(set, config): [per-sample seconds]}."""
+def cost_table(render, im, sets, configs, *, n, rounds, res, tmp, alternate=False):
+    """Interleaved rounds over (set, config) rows; returns {(set, config): [per-sample seconds]}.
+    ``alternate``: odd rounds run the configs in reverse order (A/B, B/A, ...: a load drift within a round
+    does not favour the config that always runs first)."""
     out = {}
     for r in range(rounds):
         for sname, S in sets:
-            for cname, kw in configs:
+            for cname, kw in (configs[::-1] if alternate and r % 2 else configs):
                 key = (sname, cname)
                 c = per_sample_cost(render, lambda spp: sphere_scene(render, im, S, spp=spp, res=res, **kw), n, tmp,
                                     f"{sname}_{cname}".replace(" ", "_"))
@@ -162,10 +165,59 @@ CONFIGS = [
 ]
 
 
+def bootstrap_median_ci(x, reps=4000, seed=0):
+    """Percentile bootstrap 95 % interval of the median of ``x``."""
+    import numpy as np
+
+    x = np.asarray(x, float)
+    rng = np.random.default_rng(seed)
+    med = np.median(x[rng.integers(0, x.size, (reps, x.size))], axis=1)
+    return float(np.percentile(med, 2.5)), float(np.percentile(med, 97.5))
+
+
+def energy_cost(argv) -> int:
+    """``--energy [rounds] [spp]``: only the energy weight vs eq. 6's weight (issue #17 item 5), long renders
+    (per-sample cost from t(spp + 1) − t(1)), A/B then B/A in alternate rounds; writes iridescence_energy_cost.md."""
+    from bench._util import report
+    from bench.iridescence_fig import setup
+
+    nums = [int(a) for a in argv if a.isdigit()]
+    rounds = nums[0] if nums else 12
+    n = nums[1] if len(nums) > 1 else 128
+    res = (128, 128)
+    render, im = setup()
+    sets = scratch_sets(im, False)
+    configs = [CONFIGS[2], CONFIGS[3]]
+    load0 = os.getloadavg()
+    res_t = cost_table(render, im, sets, configs, n=n, rounds=rounds, res=res, tmp=tempfile.mkdtemp(),
+                       alternate=True)
+    load1 = os.getloadavg()
+    rows = []
+    for sname, _S in sets:
+        a, b = res_t[(sname, configs[0][0])], res_t[(sname, configs[1][0])]
+        ratios = [x[0] / y[0] for x, y in zip(a, b)]
+        lo, hi = bootstrap_median_ci(ratios)
+        rows.append([sname, f"{statistics.median(x[0] for x in a) * 1e3:.2f}",
+                     f"{statistics.median(y[0] for y in b) * 1e3:.2f}", f"{statistics.median(ratios):.3f}",
+                     f"{lo:.3f}-{hi:.3f}", f"{sum(x[0] for x in a) / sum(y[0] for y in b):.3f}",
+                     f"{min(ratios):.2f}-{max(ratios):.2f}"])
+    notes = (f"Energy-consistent base weight (layer A, issue #17) vs eq. 6's (1 − ρ) weight, whole-frame sphere at "
+             f"{res[0]}x{res[1]}, per-sample CPU cost = (t({n + 1} spp) − t(1 spp))/{n}, {rounds} rounds, the two configs "
+             "adjacent in each round, A/B and B/A in alternate rounds.  Ratio: median of the per-round ratios, its "
+             "percentile-bootstrap 95 % interval, the ratio of the summed costs, and the range of per-round ratios.  "
+             f"Machine load (1-min average, {os.cpu_count()} cores) start / end: {load0[0]:.1f} / {load1[0]:.1f}.")
+    report("iridescence_energy_cost", ["set", "energy CPU ms / sample", "eq. 6 CPU ms / sample",
+                                       "energy / eq. 6 (median)", "95 % CI", "ratio of sums", "per-round range"],
+           rows, notes)
+    return 0
+
+
 def main(argv) -> int:
     from bench._util import report
     from bench.iridescence_fig import setup
 
+    if "--energy" in argv:
+        return energy_cost(argv)
     quick = "--quick" in argv
     render, im = setup()
     n = 16 if quick else 64
