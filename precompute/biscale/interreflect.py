@@ -227,12 +227,16 @@ def _ggx_D(nh, alpha):
     return a2 / (np.pi * ((nh * nh) * (a2 - 1.0) + 1.0) ** 2)
 
 
-def _sample_dirs(rng, n, wo, w_spec, alpha):
+def _sample_dirs(rng, n, wo, w_spec, alpha, u=None):
     """One-sample mixture: cosine lobe about n (prob 1 - w_spec) or GGX(α) half vector about n mirrored
-    from ωo (prob w_spec).  Returns (ω (N, 3), pdf (N,)) in solid angle (mixture pdf)."""
+    from ωo (prob w_spec).  ``u`` (N, 3): the uniforms (u1, u2, pick) to use (default: drawn from ``rng``).
+    Returns (ω (N, 3), pdf (N,)) in solid angle (mixture pdf)."""
     N = len(n)
     t, b = _frame(n)
-    u1, u2, pick = rng.random(N), rng.random(N), rng.random(N)
+    if u is None:
+        u1, u2, pick = rng.random(N), rng.random(N), rng.random(N)
+    else:
+        u1, u2, pick = u[:, 0], u[:, 1], u[:, 2]
     phi = 2 * np.pi * u2
     spec = pick < w_spec
     # cosine
@@ -330,9 +334,17 @@ def indirect_estimate(tile, materials, V=None, dirs=None) -> float:
     return float((tile.dA * rho * np.clip(1.0 - F_s, 0.0, 1.0)).sum() / tile.dA.sum())
 
 
+def _qmc_points(n: int, rng) -> np.ndarray:
+    """``n`` points of a scrambled 5D Halton sequence (scipy.stats.qmc, seeded by ``rng``): the primary hit's
+    footprint position and the first bounce's direction and lobe pick, stratified jointly."""
+    from scipy.stats import qmc
+
+    return qmc.Halton(d=5, scramble=True, seed=rng).random(n)
+
+
 def indirect_table(tile, materials, res: int = INDIRECT_RES, n_paths: int = N_PATHS, max_bounces: int = 64,
                    rr_depth: int = 3, seed: int = 0, max_tiles: float = MAX_TILES, first_bounce: int = 2,
-                   wo=None, wi=None):
+                   wo=None, wi=None, qmc: bool = True):
     """Inter-reflected part of the tile's effective BRDF (bounces >= 2 inside the periodic tile),
     f_ind(ωi, ωo) (1/sr, RGB) on ``direction_grid(res)``: table (D, D, 3), row ωi, column ωo,
     reciprocal.  ``tile``: ``BiscaleTile``; ``materials``: small-scale material dicts.  Monte Carlo:
@@ -369,17 +381,22 @@ def indirect_table(tile, materials, res: int = INDIRECT_RES, n_paths: int = N_PA
     # --- primary hits: stratified over the sheared footprint, per ωo
     m_side = max(1, int(math.ceil(math.sqrt(n_paths))))
     n_p = m_side * m_side
-    pos, fid, oidx, wprev = [], [], [], []
+    pos, fid, oidx, wprev, u_first = [], [], [], [], []
     z_top = float(tri[..., 2].max()) + P
     for o, w in enumerate(dirs_o):
         g = TorusGrid(tri, P, w)
-        ij = np.stack(np.meshgrid(np.arange(m_side), np.arange(m_side), indexing="ij"), -1).reshape(-1, 2)
-        u = (ij + rng.random((n_p, 2))) * (P / m_side)
+        if qmc:     # (footprint x, y, first direction u1, u2, lobe pick): one scrambled 5D Halton set per ωo
+            q = _qmc_points(n_p, rng)
+            u, u1 = q[:, :2] * P, q[:, 2:]
+        else:
+            ij = np.stack(np.meshgrid(np.arange(m_side), np.arange(m_side), indexing="ij"), -1).reshape(-1, 2)
+            u, u1 = (ij + rng.random((n_p, 2))) * (P / m_side), rng.random((n_p, 3))
         z, tid = first_hit(g, u, z_top)
         ok = tid >= 0
         p = np.concatenate([u + z[:, None] * g.shear, z[:, None]], 1)
         pos.append(p[ok]), fid.append(tid[ok]), oidx.append(np.full(ok.sum(), o)), wprev.append(np.tile(w, (ok.sum(), 1)))
-    pos, fid, oidx, wprev = map(np.concatenate, (pos, fid, oidx, wprev))
+        u_first.append(u1[ok])
+    pos, fid, oidx, wprev, u_first = map(np.concatenate, (pos, fid, oidx, wprev, u_first))
     beta = np.ones((len(pos), 3))
     acc = np.zeros((Do, D * 3))
     n_vertices, depth_max = 0, 0
@@ -409,7 +426,7 @@ def indirect_table(tile, materials, res: int = INDIRECT_RES, n_paths: int = N_PA
             break
         # --- sample the next direction, trace to the next vertex
         w_spec, alpha = samp[m, 0], samp[m, 1]
-        wnew, pdf = _sample_dirs(rng, n, wprev, w_spec, alpha)
+        wnew, pdf = _sample_dirs(rng, n, wprev, w_spec, alpha, u_first if depth == 1 else None)
         f = np.zeros((len(pos), 3))
         for mi in np.unique(m):
             s = m == mi
