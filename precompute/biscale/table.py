@@ -95,15 +95,16 @@ def view_events(tile, axis: int, step_deg: float = EVENT_STEP_DEG, limit_deg: fl
                 max_events: int = MAX_EVENTS) -> np.ndarray:
     """Projected view angles (radians, sorted) where the tile's visible area kinks along one view axis:
     ``axis`` 0 sweeps a = atan2(ox, oz) at b = 0, 1 sweeps b = atan2(oy, oz) at a = 0
-    (``tabulated_brdf`` view grids).  A face starting to hide another (a groove's floor behind its wall at
-    tan a = (floor edge to wall top) / depth) or turning away makes the visible projected area of the faces,
-    A_f(a) = Σ_{s in f} V_s(ω) (n_s·ω)+ ΔA_s (eq. 10 per face), piecewise smooth with slope jumps; the
-    second differences Σ_f |Δ² A_f| on a ``step_deg`` sweep are ~ slope jump x step at a kink and ~ one
-    facet's area elsewhere.  Events: pairs of neighbouring samples whose summed score exceeds 1/3 of the
-    largest and 8x the median (noise), at most ``max_events``, 3° apart, each placed at the centroid
-    of its pair (exact for an isolated kink of a piecewise linear A_f).  For tiles extruded along y
-    (grooves) the events along a are lines of the whole view grid; elsewhere they are where the sweep
-    crossed them.  Cost: one visibility pass over 2 x 80 / step directions."""
+    (``tabulated_brdf`` view grids).  A face starting to hide another (a groove's floor behind its wall)
+    or turning away happens where a view ray grazes two of the tile's vertices (or the periodic copies of
+    one): the candidates are the angles atan2(Δx + kP, Δz) of every vertex pair (Δz > 0, k = -2..2; Δy
+    for axis 1), exact.  The facets' visible projected area per face, A_f = Σ_{s in f} V_s(ω) (n_s·ω)+ ΔA_s
+    (eq. 10 per face), on a ``step_deg`` sweep tells which candidates are events: a kink gives second
+    differences Σ_f |Δ² A_f| ~ slope jump x step around it, a facet changing visibility ~ its area.  Kept:
+    candidates whose score (the two samples around them) exceeds 1/3 of the best candidate's and 3x the
+    sweep's median, at most ``max_events``, 3° apart.  For tiles extruded along y (grooves) the events
+    along a are lines of the whole view grid; elsewhere they are where the sweep crossed them.  Cost: one
+    visibility pass over 2 x ``limit_deg`` / ``step_deg`` directions."""
     h = np.radians(float(step_deg))
     lim = np.radians(float(limit_deg))
     a = np.arange(-lim, lim + 0.5 * h, h)
@@ -120,17 +121,26 @@ def view_events(tile, axis: int, step_deg: float = EVENT_STEP_DEG, limit_deg: fl
         np.add.at(area, tile.face[c:c + _CHUNK],
                   V[c:c + _CHUNK] * np.clip(tile.n[c:c + _CHUNK] @ d.T, 0.0, None) * tile.dA[c:c + _CHUNK, None])
     d2 = np.abs(area[:, :-2] - 2.0 * area[:, 1:-1] + area[:, 2:]).sum(0)        # at a[1:-1]
-    pair = d2[:-1] + d2[1:]                                                      # a kink between a[j+1], a[j+2]
+    pair = d2[:-1] + d2[1:]                                   # pair[j]: around the interval (a[j+1], a[j+2])
     if pair.size == 0 or pair.max() <= 0:
         return np.zeros(0)
-    ok = (pair > pair.max() / 3.0) & (pair > 8.0 * np.median(pair))
+    P = float(tile.tile.period)
+    vx, vz = tile.tile.vertices[:, int(axis)], tile.tile.vertices[:, 2]
+    dx = (vx[None, :] - vx[:, None])[..., None] + P * np.arange(-2, 3)
+    dz = np.broadcast_to((vz[None, :] - vz[:, None])[..., None], dx.shape)
+    cand = np.unique(np.round(np.arctan2(dx[dz > 1e-9 * P], dz[dz > 1e-9 * P]), 9))
+    cand = cand[(cand > a[1]) & (cand < a[-2])]
+    if cand.size == 0:
+        return np.zeros(0)
+    j = np.clip(np.floor((cand - a[0]) / h).astype(int) - 1, 0, len(pair) - 1)
+    score = pair[j]
+    ok = (score > score.max() / 3.0) & (score > 3.0 * np.median(pair))
     out = []
-    for j in np.argsort(-pair):
-        if not ok[j] or len(out) >= max_events:
+    for k in np.argsort(-score):
+        if not ok[k] or len(out) >= max_events:
             break
-        x = (d2[j] * a[j + 1] + d2[j + 1] * a[j + 2]) / pair[j]
-        if all(abs(x - e) > np.radians(3.0) for e in out):
-            out.append(float(x))
+        if all(abs(cand[k] - e) > np.radians(3.0) for e in out):
+            out.append(float(cand[k]))
     return np.sort(np.array(out))
 
 
