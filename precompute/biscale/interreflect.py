@@ -18,9 +18,16 @@ paths) from the viewer's side:
   vertex is found by ``periodic_ray_cast`` (exact: the ray walks the lattice of tile copies);
   Russian roulette after ``rr_depth`` bounces.
 
-The indirect table f_ind(ωi, ωo) = L_ind(ωo) / cos θi (1/sr, RGB) is made reciprocal ((T + Tᵀ)/2, as
-the direct table) and resampled bilinearly onto the closure's finer grid: inter-reflected light is
-smooth in ωi and ωo compared with the shadowing boundaries of the direct term.
+The indirect table f_ind(ωi, ωo) = L_ind(ωo) / cos θi (1/sr, RGB) has two estimators per entry: the
+camera path from ωo with NEE towards ωi, and (reciprocity) the camera path from ωi with NEE towards ωo.
+They are combined by multiple importance sampling (balance heuristic on the full path densities in area
+measure: primary hit (n·ω)/cos θ, the sampling mixture's density at every vertex, forward and reverse;
+the 1/d² terms are shared): a caustic such as lamp -> glossy wall -> diffuse floor -> viewer is hard to
+hit from the viewer's side and easy from the light's (measured, groove, view 0/0, 289 paths: seed spread
+4.8 % -> 1.8 % of the env + lamp integral).  The primary hit and the first bounce's direction are
+stratified jointly (scrambled 5D Halton).  ``tile_indirect(view=...)`` computes the table at a view grid's
+nodes (two paired runs), so that the closure's ωo axis has the tile's visibility events on nodes for the
+inter-reflected light too; the ωi axis is resampled bilinearly onto the closure's grid.
 
 ``indirect_estimate`` is the cheap per-tile decision (``interreflections="auto"``): the first-bounce
 ratio  Σ_s ΔA_s ρ_s (1 - F_s) / Σ_s ΔA_s  with F_s the cosine-weighted sky-view fraction of facet s
