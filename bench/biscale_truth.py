@@ -145,7 +145,7 @@ def rel_error(ex, bk, se_ex=None, se_bk=None):
     return err, s[np.arange(len(c)), c] / ex.mean(1)
 
 
-def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False):
+def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto", seed=0):
     """The baked materials' tables for one tile: the direct (Wu) closure table, the same plus the
     inter-reflected part (``interreflect.tile_indirect``), optionally the closure fits of both.
     Returns (dict name -> (TabulatedBRDF | ClosureFit, EffectiveBRDF), timings, indirect info)."""
@@ -156,16 +156,20 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False):
     from scratch_materials.precompute.tables.tabulated_brdf import TabulatedBRDF
 
     t0 = time.perf_counter()
-    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=n_facets, dir_res=dir_res)
+    bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=n_facets, dir_res=dir_res, seed=seed)
     brdf = bt.effective_brdf(mats)
     t_eff = time.perf_counter() - t0
     t0 = time.perf_counter()
-    table = btable.tabulate_tile(bt, mats)        # the closure's finer table (direct, eq. 8)
+    table = btable.tabulate_tile(bt, mats, view=view)   # the closure's finer table (direct, eq. 8)
     t_tab = time.perf_counter() - t0
-    ind, info = interreflect.tile_indirect(bt, mats, True)
+    vg = {"view_a": table.view_a, "view_b": table.view_b} if table.view_a is not None else {}
+    ind, info = interreflect.tile_indirect(bt, mats, True, view=table.view_nodes() if vg else None)
     r = info["res"]
-    table_gi = TabulatedBRDF(table.table + interreflect.resample(ind, r, table.res), table.res, False, table.info)
-    brdf_gi = EffectiveBRDF(brdf.table + interreflect.resample(ind, r, brdf.dir_res), brdf.dir_res, brdf.info)
+    add = interreflect.resample_wi(ind, r, table.res) if vg else interreflect.resample(ind, r, table.res)
+    table_gi = TabulatedBRDF(table.table + add, table.res, False, table.info, **vg)
+    add = interreflect.resample_views(ind, r, vg["view_a"], vg["view_b"], brdf.dir_res) if vg else \
+        interreflect.resample(ind, r, brdf.dir_res)
+    brdf_gi = EffectiveBRDF(brdf.table + add, brdf.dir_res, brdf.info)
     out = {"table": (table, brdf), "table + inter-refl.": (table_gi, brdf_gi)}
     if fit:
         out["fit"] = (fit_closures(brdf), brdf)
@@ -193,6 +197,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seeds", type=int, default=2, help="renders per image (noise estimate from the seeds, >= 2)")
     ap.add_argument("--shifts", type=int, default=4, help="camera offsets over the tile period per explicit image")
     ap.add_argument("--tiles", default=",".join(TILES))
+    ap.add_argument("--bake-seed", type=int, default=0, help="seed of the bake (facets, indirect paths)")
     ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
     args = ap.parse_args(argv)
     addon = blender()
@@ -208,7 +213,8 @@ def main(argv: list[str]) -> int:
     for name in args.tiles.split(","):
         factory, kw, mats = TILES[name]
         tile = getattr(geometry, factory)(**kw)
-        variants, times, info = bake_variants(tile, mats, n_facets=2000 if args.quick else 10000, fit=args.fit)
+        variants, times, info = bake_variants(tile, mats, n_facets=2000 if args.quick else 10000, fit=args.fit,
+                                              seed=args.bake_seed)
         bake_s = " / ".join(f"{k} {v:.1f}" for k, v in times.items())
         for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
             use = [k for k in variants if bounces or "inter-refl." not in k]
@@ -226,16 +232,19 @@ def main(argv: list[str]) -> int:
         print(name, "indirect estimate", info["estimate"], flush=True)
     report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
-           notes=f"explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
+           notes=f"bake seed {args.bake_seed}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
                  f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
                  f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
                  "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "
                  "Monte Carlo noise (facet sampling, the indirect table's paths)), "
                  "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
                  f"{GI_BOUNCES} for the explicit tiles (the baked plane has nothing to bounce off). 'table': Wu's "
-                 "single-bounce effective BRDF (closure table, res 19); '+ inter-refl.': plus bounces >= 2 inside "
-                 "the periodic tile (precompute.biscale.interreflect; indirect table res 10 x 529 paths per view direction "
-                 "for diffuse tiles, res 19 x 144 for the GGX α 0.2 groove, interreflect.indirect_res)")
+                 "single-bounce effective BRDF (closure table: ωi res 19, ωo on a 19 x 19 view grid of projected view "
+                 "angles with the tile's visibility events on nodes, table.tile_view_grid); '+ inter-refl.': plus "
+                 "bounces >= 2 inside the periodic tile (precompute.biscale.interreflect: res 10 x 529 paths per "
+                 "direction for diffuse tiles, res 19 x 289 for the GGX α 0.2 groove, interreflect.indirect_res; first "
+                 "bounce QMC-stratified; computed at the view nodes, the camera-side and light-side estimators "
+                 "combined by MIS)")
     del addon
     return 0
 

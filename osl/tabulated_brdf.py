@@ -6,7 +6,7 @@ shader (``osl.specialise``); the sampling, its density and the table layout are 
 """
 from __future__ import annotations
 
-from ..precompute.tables.tabulated_brdf import MAX_FLOATS, closure_tables  # noqa: F401 - re-exports
+from ..precompute.tables.tabulated_brdf import MAX_FLOATS, VIEW_GUIDE_BINS, closure_tables, view_guide  # noqa: F401
 from . import const_array, specialise
 
 
@@ -20,7 +20,12 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> 
     D = tb.res * tb.res
     tables = (const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
               + const_array("GUIDE", tb.guide.ravel(), "int"))
+    view = {}
+    if tb.view_a is not None:       # a view grid in the projected view angles (tabulated_brdf docstring)
+        tables += (const_array("VA", tb.view_a) + const_array("VB", tb.view_b)
+                   + const_array("VGA", view_guide(tb.view_a), "int") + const_array("VGB", view_guide(tb.view_b), "int"))
+        view = dict(VIEW_GRID=True, NA=len(tb.view_a), NB=len(tb.view_b), VGBINS=VIEW_GUIDE_BINS)
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
-                           ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent)),
+                           ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent), **view),
                       {"tabulated_brdf_tables.h": tables}, "osl/tabulated_brdf.py")

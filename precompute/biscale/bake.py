@@ -20,7 +20,7 @@ from ..tables import cache, files
 from .brdfs import material_lobes
 from .effective import BiscaleTile, check_options
 from .fit import fit_closures
-from .interreflect import check_mode, resample, tile_indirect
+from .interreflect import check_mode, resample, resample_views, resample_wi, tile_indirect
 from .table import tabulate_tile
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
@@ -116,16 +116,18 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
     table = None
     if closure_table:
         t0 = time.perf_counter()
-        table = tabulate_tile(tile, materials)
+        table = tabulate_tile(tile, materials, view="auto")     # the tile's visibility events on view nodes
         t_table = time.perf_counter() - t0
-    ind, ind_info = tile_indirect(tile, materials, interreflections)
+    vg = {"view_a": table.view_a, "view_b": table.view_b} if table is not None and table.view_a is not None else {}
+    ind, ind_info = tile_indirect(tile, materials, interreflections, view=table.view_nodes() if vg else None)
     if ind is not None:                                  # bounces >= 2 inside the tile, on both grids
         r = ind_info["res"]
-        brdf = type(brdf)(brdf.table + resample(ind, r, brdf.dir_res), brdf.dir_res,
-                          {**brdf.info, "interreflections": 1})
+        ind_brdf = resample_views(ind, r, vg["view_a"], vg["view_b"], brdf.dir_res) if vg else resample(ind, r, brdf.dir_res)
+        brdf = type(brdf)(brdf.table + ind_brdf, brdf.dir_res, {**brdf.info, "interreflections": 1})
         if table is not None:
-            table = type(table)(table.table + resample(ind, r, table.res), table.res, table.iso,
-                                {**table.info, "interreflections": 1})
+            ind_table = resample_wi(ind, r, table.res) if vg else resample(ind, r, table.res)
+            table = type(table)(table.table + ind_table, table.res, table.iso, {**table.info, "interreflections": 1},
+                                **vg)
     step(0.7)
     fit = fit_closures(brdf, n_lobes=n_lobes)
     step(0.9)

@@ -17,6 +17,16 @@ t = px-py; index = row*res + col, row along s; the same map as ``precompute.bisc
 ``eval`` is bilinear in ωi's (s, t) and bilinear (anisotropic) or linear in θo (isotropic), clamped
 to the outermost nodes.
 
+**View grids** (``view_a``, ``view_b``: anisotropic, not half).  The ωo axis is then its own tensor grid
+in the *projected view angles* a = atan2(ox, oz), b = atan2(oy, oz) ∈ (-π/2, π/2) (every upper-hemisphere
+direction once), with nodes at arbitrary increasing angles ``view_a`` (NA) x ``view_b`` (NB), node
+o = ia·NB + ib, ωo(a, b) = normalize(tan a, tan b, 1); ``eval`` is bilinear in (a, b) between them.
+The closure picks one ωi row per ωo node, so the view axis can be denser or warped without growing
+the ωi axis: a shadowing / masking event of a tile extruded along y (every edge along y: grooves,
+V-cavities) is a line a = const, so its view kinks sit exactly on nodes (``view_grid_nodes``) instead
+of between them.  The shader finds the interval by a guide over the angle (``view_guide``) and a short
+walk, once per shading point.
+
 **Half-vector tables** (``half=True``, for sharp microfacet BRDFs such as measured NDFs).  The "ωi"
 axis is then the half vector h = normalize(ωi + ωo) on the same hemi-octahedral grid zoomed to
 (s, t) ∈ [-Z, Z]² (Z = ``extent`` <= 1: the diamond |px| + |py| <= Z around the normal), and
@@ -66,7 +76,8 @@ from .. import validation
 
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
-           "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick"]
+           "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
+           "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS"]
 
 #: Largest ωi grid side.
 MAX_RES = 48
@@ -74,6 +85,8 @@ MAX_RES = 48
 MAX_FLOATS = 400_000
 #: Fraction of the proposal spread over all cells ∝ solid angle (bounds the weights).
 DEFENSIVE = 0.02
+#: Bins of the view-grid guide over (-π/2, π/2) (``view_guide``).
+VIEW_GUIDE_BINS = 64
 
 
 # ----------------------------------------------------------------------------- the hemi-octahedral map
@@ -134,6 +147,88 @@ def _bilinear(st, res):
     return idx, w
 
 
+def view_angles(wo) -> np.ndarray:
+    """Projected view angles (a, b) = (atan2(ox, oz), atan2(oy, oz)) (..., 2), radians, of directions (..., 3)
+    with z >= 0 (the coordinates of a view grid, module docstring)."""
+    wo = np.asarray(wo, np.float64)
+    z = np.maximum(wo[..., 2], 0.0)
+    return np.stack([np.arctan2(wo[..., 0], z), np.arctan2(wo[..., 1], z)], -1)
+
+
+def view_directions(view_a, view_b) -> np.ndarray:
+    """Unit ωo (NA NB, 3) of the view grid nodes, o = ia NB + ib: normalize(tan a, tan b, 1)."""
+    A, Bb = np.meshgrid(np.asarray(view_a, np.float64), np.asarray(view_b, np.float64), indexing="ij")
+    v = np.stack([np.tan(A), np.tan(Bb), np.ones_like(A)], -1).reshape(-1, 3)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _node_taps(x, nodes):
+    """Clamped linear taps on increasing ``nodes``: (i0 in [0, n-2], weight of i0+1 in [0, 1])."""
+    nodes = np.asarray(nodes, np.float64)
+    i0 = np.clip(np.searchsorted(nodes, x, side="right") - 1, 0, len(nodes) - 2)
+    f = np.clip((x - nodes[i0]) / (nodes[i0 + 1] - nodes[i0]), 0.0, 1.0)
+    return i0, f
+
+
+def view_taps(wo, view_a, view_b):
+    """Bilinear taps of views ``wo`` (N, 3) on the view grid: (node indices (N, 4), weights (N, 4)) in the
+    shader's order (ia, ib), (ia, ib+1), (ia+1, ib), (ia+1, ib+1); clamped to the outermost nodes."""
+    ab = view_angles(wo)
+    ia, fa = _node_taps(ab[:, 0], view_a)
+    ib, fb = _node_taps(ab[:, 1], view_b)
+    nb = len(view_b)
+    o = ia * nb + ib
+    idx = np.stack([o, o + 1, o + nb, o + nb + 1], 1)
+    w = np.stack([(1 - fa) * (1 - fb), (1 - fa) * fb, fa * (1 - fb), fa * fb], 1)
+    return idx, w
+
+
+def view_guide(nodes, bins: int = VIEW_GUIDE_BINS) -> np.ndarray:
+    """Guide of the shader's interval search on ``nodes`` (increasing, radians): for bin j of (-π/2, π/2)
+    the interval i in [0, n-2] holding the bin's lower edge (n-2 / 0 beyond the nodes).  The shader starts
+    there and steps up while x >= nodes[i+1] (i < n-2): the interval ``view_taps`` finds."""
+    edges = -0.5 * np.pi + np.arange(bins) * (np.pi / bins) - 1e-6   # float32 rounding cannot skip an interval
+    nodes = np.asarray(nodes, np.float64)
+    return np.clip(np.searchsorted(nodes, edges, side="right") - 1, 0, len(nodes) - 2).astype(np.int32)
+
+
+def view_grid_nodes(n: int, events=(), limit: float = np.radians(85.0)) -> np.ndarray:
+    """``n`` increasing view angles (radians) over [-limit, limit] with every event angle in ``events``
+    (|e| < limit) on a node: the events and the two ends are fixed, the remaining nodes go to the gaps in
+    proportion to their widths (largest remainder), evenly spaced in each gap.  ``n`` must hold the ends and
+    the events (ValueError otherwise); events closer than 1e-3 rad merge."""
+    validation.check_range("n", n, 2, 256)
+    ev = np.sort(np.asarray(events, np.float64).ravel()) if len(events) else np.zeros(0)
+    ev = ev[np.abs(ev) < limit - 1e-3]
+    fixed = [-limit]
+    for e in ev:
+        if e - fixed[-1] > 1e-3:
+            fixed.append(float(e))
+    if limit - fixed[-1] <= 1e-3:
+        fixed.pop()
+    fixed.append(limit)
+    fixed = np.array(fixed)
+    if len(fixed) > n:
+        raise ValueError(f"n: {len(fixed)} view nodes are fixed (ends and events), got n = {n}")
+    gaps = np.diff(fixed)
+    free = int(n) - len(fixed)
+    share = gaps / gaps.sum() * free
+    k = np.floor(share).astype(int)
+    k[np.argsort(-(share - k))[: free - k.sum()]] += 1
+    out = [fixed[:1]]
+    for g0, g1, m in zip(fixed[:-1], fixed[1:], k):
+        out.append(g0 + (g1 - g0) * np.arange(1, m + 2) / (m + 1))
+    return np.concatenate(out)
+
+
+def _check_view_nodes(name, v):
+    v = np.asarray(validation.finite(name, v), np.float64).ravel()
+    if len(v) < 2 or len(v) > 256 or np.any(np.diff(v) <= 1e-6) or np.abs(v).max() >= 0.5 * np.pi:
+        raise ValueError(f"{name}: expected 2..256 increasing angles in (-π/2, π/2) (radians), got {len(v)} values "
+                         f"in [{v.min() if len(v) else 0:.4g}, {v.max() if len(v) else 0:.4g}]")
+    return v
+
+
 def _unit_rows(name, w):
     w = np.atleast_2d(validation.finite(name, w))
     if w.ndim != 2 or w.shape[1] != 3:
@@ -176,13 +271,17 @@ class TabulatedBRDF:
     """A tabulated standard BRDF f(ωi, ωo) (1/sr, RGB); see the module docstring for the grids.
 
     ``table`` (res², n_o, 3): n_o = res² (anisotropic) or ``n_theta`` (isotropic).  ``half``: the first
-    axis is the half vector on the grid zoomed to (s, t) ∈ [-extent, extent]² (module docstring)."""
+    axis is the half vector on the grid zoomed to (s, t) ∈ [-extent, extent]² (module docstring).
+    ``view_a`` / ``view_b`` (radians): a view grid in the projected view angles (anisotropic, not half;
+    n_o = NA NB, module docstring)."""
     table: np.ndarray
     res: int
     iso: bool = False
     info: dict = field(default_factory=dict)
     half: bool = False
     extent: float = 1.0
+    view_a: np.ndarray | None = None
+    view_b: np.ndarray | None = None
 
     def __post_init__(self):
         validation.check_range("res", self.res, 2, MAX_RES)
@@ -191,9 +290,19 @@ class TabulatedBRDF:
         self.extent = float(validation.check_range("extent", self.extent, 1e-3, 1.0)) if self.half else 1.0
         t = np.asarray(self.table, np.float64)
         n_i = self.res * self.res
-        if t.ndim != 3 or t.shape[0] != n_i or t.shape[2] != 3 or (not self.iso and t.shape[1] != n_i) \
+        if (self.view_a is None) != (self.view_b is None):
+            raise ValueError("view_a, view_b: give both angle arrays of a view grid, or neither")
+        n_o = n_i
+        if self.view_a is not None:
+            if self.iso or self.half:
+                raise ValueError("view_a: a view grid needs an anisotropic, non-half table (iso=False, half=False)")
+            self.view_a = _check_view_nodes("view_a", self.view_a)
+            self.view_b = _check_view_nodes("view_b", self.view_b)
+            n_o = len(self.view_a) * len(self.view_b)
+        if t.ndim != 3 or t.shape[0] != n_i or t.shape[2] != 3 or (not self.iso and t.shape[1] != n_o) \
                 or (self.iso and not 2 <= t.shape[1] <= 256):
-            want = "(res², n_theta in [2, 256], 3)" if self.iso else "(res², res², 3)"
+            want = "(res², n_theta in [2, 256], 3)" if self.iso else \
+                ("(res², len(view_a) len(view_b), 3)" if self.view_a is not None else "(res², res², 3)")
             raise ValueError(f"table: expected shape {want} with res = {self.res}, got {t.shape}")
         if not np.all(np.isfinite(t)) or t.min() < 0:
             raise ValueError("table: BRDF values must be finite and >= 0")
@@ -204,14 +313,20 @@ class TabulatedBRDF:
         return self.table.shape[1]
 
     def cache_key(self):
-        return {"table": self.table.astype(np.float32), "res": self.res, "iso": bool(self.iso),
-                "half": self.half, "extent": self.extent}
+        key = {"table": self.table.astype(np.float32), "res": self.res, "iso": bool(self.iso),
+               "half": self.half, "extent": self.extent}
+        if self.view_a is not None:
+            key.update(view_a=self.view_a, view_b=self.view_b)
+        return key
 
     # -- frames
     def _local(self, wi, wo):
         """ωi in the table's frame and the ωo interpolation taps (N, k) with weights (N, k)."""
         if not self.iso:
-            io, wto = _bilinear(hemi_oct_encode(wo), self.res)
+            if self.view_a is not None:
+                io, wto = view_taps(wo, self.view_a, self.view_b)
+            else:
+                io, wto = _bilinear(hemi_oct_encode(wo), self.res)
             return wi, io, wto
         phi = np.arctan2(wo[:, 1], wo[:, 0])
         c, s = np.cos(phi), np.sin(phi)
@@ -265,6 +380,8 @@ class TabulatedBRDF:
 
     def view_nodes(self) -> np.ndarray:
         """Unit ωo of the table's ωo nodes (n_o, 3)."""
+        if self.view_a is not None:
+            return view_directions(self.view_a, self.view_b)
         if not self.iso:
             return direction_grid(self.res)
         th = theta_nodes(self.n_o)
@@ -272,11 +389,12 @@ class TabulatedBRDF:
 
     @classmethod
     def from_function(cls, f, res: int, iso: bool = False, n_theta: int = 32, sub: int = 1, info=None,
-                      half: bool = False, extent: float = 1.0):
+                      half: bool = False, extent: float = 1.0, view_a=None, view_b=None):
         """Tabulate ``f(wi, wo) -> (N, 3)`` (1/sr, surface frame) at the grid nodes; with ``sub`` > 1
         each ωi value is the average over sub x sub points of its cell in (s, t) (box prefilter, for
         BRDFs sharper than a cell).  ``half``: a half-vector table over (s, t) ∈ [-extent, extent]²
-        (module docstring); the cell average is over h, ωi = reflect(ωo, h), 0 below the horizon."""
+        (module docstring); the cell average is over h, ωi = reflect(ωo, h), 0 below the horizon.
+        ``view_a`` / ``view_b``: ωo on that view grid (radians, module docstring)."""
         validation.check_range("res", res, 2, MAX_RES)
         validation.check_range("sub", sub, 1, 16)
         res, sub = int(res), int(sub)
@@ -285,8 +403,9 @@ class TabulatedBRDF:
         extent = validation.check_range("extent", extent, 1e-3, 1.0) if half else 1.0
         st, _ = cell_points(res, sub, extent)
         x_all = hemi_oct_decode(st)                  # ωi, or h for half tables: (res² * sub², 3), cell-major
-        n_o = int(n_theta) if iso else res * res
-        wo_nodes = cls(np.zeros((res * res, n_o, 3)), res, bool(iso)).view_nodes()
+        vg = {} if view_a is None and view_b is None else {"view_a": view_a, "view_b": view_b}
+        n_o = int(n_theta) if iso else (len(np.ravel(view_a)) * len(np.ravel(view_b)) if vg else res * res)
+        wo_nodes = cls(np.zeros((res * res, n_o, 3)), res, bool(iso), half=bool(half), **vg).view_nodes()
         out = np.empty((res * res, len(wo_nodes), 3))
         for o, wo in enumerate(wo_nodes):
             WO = np.broadcast_to(wo, x_all.shape)
@@ -304,7 +423,7 @@ class TabulatedBRDF:
             out[:, o] = np.broadcast_to(v.reshape(res * res, sub * sub, -1).mean(1), (res * res, 3))
         if not np.all(np.isfinite(out)):
             raise ValueError("f: returned NaN or inf on the table grid")
-        return cls(np.maximum(out, 0.0), res, bool(iso), dict(info or {}), bool(half), float(extent))
+        return cls(np.maximum(out, 0.0), res, bool(iso), dict(info or {}), bool(half), float(extent), **vg)
 
 
 # ----------------------------------------------------------------------------- the closure
@@ -359,6 +478,8 @@ class ClosureTables:
     half: bool = False
     extent: float = 1.0
     guide: np.ndarray | None = None
+    view_a: np.ndarray | None = None
+    view_b: np.ndarray | None = None
 
     def __post_init__(self):
         if self.guide is None:
@@ -428,8 +549,9 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None) -> ClosureTa
     cdf = np.concatenate([np.zeros((brdf.n_o, 1)), np.cumsum(q, 1)], 1)
     cdf /= cdf[:, -1:]
     cdf[:, -1] = 1.0
+    va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
     return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha),
-                         half, extent)
+                         half, extent, view_a=va, view_b=vb)
 
 
 def guide_pick(cdf, guide, o, u) -> np.ndarray:
@@ -451,6 +573,9 @@ def guide_pick(cdf, guide, o, u) -> np.ndarray:
 def _view_taps(tb: ClosureTables, wo):
     """ωo node taps (N, k), their weights (N, k), and the frame rotation (cos φo, sin φo) (iso) or (1, 0)."""
     n = len(wo)
+    if getattr(tb, "view_a", None) is not None:
+        idx, w = view_taps(wo, tb.view_a, tb.view_b)
+        return idx, w, np.ones(n), np.zeros(n)
     if not tb.iso:
         idx, w = _bilinear(hemi_oct_encode(wo), tb.res)
         return idx, w, np.ones(n), np.zeros(n)

@@ -157,11 +157,13 @@ def test_bake_adds_the_indirect_table(tmp_path):
     assert not i_off["interreflections"] and i_on["interreflections"] and i_on["indirect_estimate"] > 0.05
     tile, _ = bake.get_tile(t.vertices, t.faces, np.minimum(t.face_material, 1), 1.0, n_facets=600, dir_res=6,
                             normal_res=21, l_M=40)
-    ind, info = ir.tile_indirect(tile, GREY, True)
+    T = i_on["table"]                     # the closure's table has a view grid (the tile's events on nodes)
+    assert T.view_a is not None and np.array_equal(T.view_a, i_off["table"].view_a)
+    ind, info = ir.tile_indirect(tile, GREY, True, view=T.view_nodes())   # computed at the view nodes
     assert info["seconds"] < 0.5 * i_on["seconds_indirect"] + 0.05      # memoised
-    np.testing.assert_allclose(on.table - off.table, ir.resample(ind, info["res"], 6), atol=1e-12)
-    np.testing.assert_allclose(i_on["table"].table - i_off["table"].table,
-                               ir.resample(ind, info["res"], i_on["table"].res), atol=1e-12)
+    np.testing.assert_allclose(on.table - off.table, ir.resample_views(ind, info["res"], T.view_a, T.view_b, 6),
+                               atol=1e-12)
+    np.testing.assert_allclose(T.table - i_off["table"].table, ir.resample_wi(ind, info["res"], T.res), atol=1e-12)
 
 
 def test_resample_is_identity_on_its_own_grid_and_keeps_constants():
