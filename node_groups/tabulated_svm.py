@@ -10,7 +10,7 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 - the ωo node: floor(x + h) per axis (isotropic: x the continuous θo index; anisotropic: the hemi-octahedral
   row and column drawn independently), which gives each tap its interpolation weight;
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
-  (h, (o + 1/2) / n_o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
+  the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
   interpolation of the OSL shader, never bleeding into a neighbour tile).
 
@@ -32,7 +32,7 @@ from .scratch_svm import _data_image, _G
 
 GROUP_PREFIX = "Scratch: Tabulated BRDF "
 IMAGE_PREFIX = "Scratch tabulated "
-VERSION = 1
+VERSION = 2
 #: largest image side the graph uses (GPU textures and EEVEE: 16384 on common hardware)
 MAX_IMAGE_SIDE = 16384
 
@@ -99,7 +99,6 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
     N, wo, P = geo.outputs["Normal"], geo.outputs["Incoming"], geo.outputs["Position"]
     t = tan.outputs["Tangent"]              # orthonormal to N (Cycles' Tangent node)
-    ey = g.vmath("CROSS_PRODUCT", N, t)
 
     # per-sample uniforms: (h_o, h_o2, h_k) and the jitter (h_t, h_s, -)
     w_hash = g.vmath("DOT_PRODUCT", wo, (12.9898, 78.233, 37.719))
@@ -109,10 +108,10 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         g._set(wn.inputs["Vector"], P)
         g._set(wn.inputs["W"], w)
         return wn.outputs["Color"]
-    h1 = noise(w_hash)
-    jit = noise(g.math("ADD", w_hash, 59.0))
-    u0, _, hk = g.separate(h1)
     oz = g.vmath("DOT_PRODUCT", wo, N)
+    h1 = noise(w_hash)
+    jit = noise(oz)                          # another 4D point (P, ωo·n): an independent hash, no extra node
+    u0, _, hk = g.separate(h1)
 
     def map_range(x, lo, hi, a, b, vector=False):
         m = g.node("ShaderNodeMapRange", data_type="FLOAT_VECTOR" if vector else "FLOAT", clamp=True)
@@ -124,13 +123,18 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     flip = _break == "view"
     # 1. the ωo node o, drawn with its interpolation weight: floor(x + h) per axis
     if tb.iso:
-        th0 = 0.25 * math.pi / n_o
-        x = map_range(g.math("ARCCOSINE", oz), th0, 0.5 * math.pi - th0, *((n_o - 1.0, 0.0) if flip else (0.0, n_o - 1.0)))
-        o = g.math("FLOOR", g.math("ADD", x, u0))
-        # the table frame: fx = ωo's azimuth (t nudges it where ωo = n), fy = n x fx
-        fx = g.vmath("NORMALIZE", g.madd(t, 1e-6, g.vmath("SUBTRACT", wo, g.vmath("SCALE", N, scale=oz))))
-        fy = g.vmath("CROSS_PRODUCT", N, fx)
+        # x / (n_o - 1) = clamp(θo / (π / 2 n_o) - 1/2) / (n_o - 1) in [0, 1] (the Math node's clamp)
+        a, b = 2.0 * n_o / math.pi / (n_o - 1.0), -0.5 / (n_o - 1.0)
+        if flip:
+            a, b = -a, 1.0 - b
+        xn = g.math("MULTIPLY_ADD", g.math("ARCCOSINE", oz), a, b)
+        xn.node.use_clamp = True
+        o = g.math("FLOOR", g.math("MULTIPLY_ADD", xn, n_o - 1.0, u0))
+        # the table frame (ωo at azimuth 0): fy = normalize(n x ωo'), fx = fy x n, ωo' = ωo + 1e-6 t (defined at ωo = n)
+        fy = g.vmath("NORMALIZE", g.vmath("CROSS_PRODUCT", N, g.madd(t, 1e-6, wo)))
+        fx = g.vmath("CROSS_PRODUCT", fy, N)
     else:
+        ey = g.vmath("CROSS_PRODUCT", N, t)
         A = g.vmath("DOT_PRODUCT", wo, g.vmath("ADD", t, ey))          # ωx + ωy
         B = g.vmath("DOT_PRODUCT", wo, g.vmath("SUBTRACT", t, ey))     # ωx - ωy
         d = g.math("ADD", g.math("MAXIMUM", g.math("ABSOLUTE", A), g.math("ABSOLUTE", B)), oz)
@@ -140,11 +144,13 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         rc = g.vmath("FLOOR", g.vmath("ADD", xrc, h1))
         o = g.vmath("DOT_PRODUCT", rc, (float(res), 1.0, 0.0))
         fx, fy = t, ey
-    # 2. the ωi bin: node o's alias table at texel (floor(h M), o)
+    # 2. the ωi bin: node o's alias table at texel (j, o), j = floor(h M)
     uh = g.math("MULTIPLY", hk, float(D))
     j = g.math("FLOOR", uh)
     ta = g.node("ShaderNodeTexImage", image=imgs["A"], interpolation="Closest", extension="EXTEND")
-    g._set(ta.inputs["Vector"], g.combine(hk, g.math("MULTIPLY_ADD", o, 1.0 / n_o, 0.5 / n_o)))
+    # at the texel centres ((j + 1/2) / M, (o + 1/2) / n_o): GPU texture units round coordinates to 1/256 texel
+    g._set(ta.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", j, 1.0 / D, 0.5 / D),
+                                          g.math("MULTIPLY_ADD", o, 1.0 / n_o, 0.5 / n_o)))
     prob, d_alias, inv_pj = g.separate(ta.outputs["Color"])
     if _break == "alias":
         lo, inv_p = j, inv_pj
@@ -174,9 +180,9 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     L2 = g.vmath("DOT_PRODUCT", x, x)
     a2 = float(tb.alpha) ** 2
 
-    def inv_albedo(cd):     # r / (1 + r), r = sqrt(1 - α² + α² / cd²): 1/A = 2 r / (1 + r) (2 is in c)
+    def inv_albedo(cd):     # 2 r / (1 + r), r = sqrt(1 - α² + α² / cd²): 1/A
         r = g.math("SQRT", g.math("ADD", g.math("DIVIDE", a2, g.math("MULTIPLY", cd, cd)), 1.0 - a2))
-        return g.math("DIVIDE", r, g.math("ADD", r, 1.0))
+        return g.math("DIVIDE", g.math("MULTIPLY", r, 2.0), g.math("ADD", r, 1.0))
     if tb.half:
         m = g.vmath("NORMALIZE", x)                                     # h
         oh = g.vmath("DOT_PRODUCT", wo, m)
@@ -185,9 +191,11 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         cd = oh
     else:
         m = g.vmath("NORMALIZE", g.madd(wo, g.math("SQRT", L2), x))
-        cd = g.vmath("DOT_PRODUCT", wo, m)
+        cd = g.vmath("DOT_PRODUCT", wo, m) if tbm.svm_uses_albedo(tb) else None
         s = g.math("DIVIDE", qz, g.math("MULTIPLY", L2, L2))
-    s = g.math("MULTIPLY", g.math("MULTIPLY", s, inv_p), inv_albedo(cd))
+    s = g.math("MULTIPLY", s, inv_p)
+    if tbm.svm_uses_albedo(tb):
+        s = g.math("MULTIPLY", s, inv_albedo(cd))
     colour = g.vmath("MULTIPLY", g.vmath("SCALE", tf.outputs["Color"], scale=s), gin.outputs["Tint"])
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
     g._set(glossy.inputs["Color"], colour)

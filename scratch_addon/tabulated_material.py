@@ -107,8 +107,8 @@ def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: i
     filtered or Kirchhoff NDF of ``precompute.microgeometry.tables.compute_tables``) rendered as its own
     microfacet BRDF table (``precompute.microgeometry.ndf_brdf``: a half-vector table zoomed to the NDF's
     support), not its ellipsoid fit; reflectance ``F`` (RGB); ``res``: the half-vector grid side (default:
-    ``ndf_brdf.table_layout``).  The SVM/EEVEE twin: ``svm_twin(tree) -> socket`` (Material from Height
-    Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
+    ``ndf_brdf.table_layout``).  Cycles (OSL and SVM) renders the table; the EEVEE twin: ``svm_twin(tree) ->
+    socket`` (Material from Height Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
     from ..precompute.microgeometry import ndf_brdf
 
     mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, svm_twin=svm_twin,

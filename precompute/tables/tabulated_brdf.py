@@ -645,10 +645,21 @@ def alias_pmf(prob, alias) -> np.ndarray:
 
 
 def svm_constant(tb: ClosureTables) -> float:
-    """c in the alias image's c / P_k: W = f qz c / (P_k len⁴) · r/(1+r) (cell² for ωi tables) or
-    W = ρ (ωo·h) c / (ωo_z P_k) · r/(1+r) (8 Z² cell² for half tables); ``sample_alias``."""
+    """c in the alias image's c / P_k: W = f qz c / (P_k len⁴) / A (c = cell² / 2 for ωi tables) or
+    W = ρ (ωo·h) c / (ωo_z P_k) / A (c = 4 Z² cell² for half tables); ``sample_alias``."""
     cell = 2.0 / tb.res
-    return 8.0 * tb.extent ** 2 * cell ** 2 if tb.half else cell ** 2
+    return 4.0 * tb.extent ** 2 * cell ** 2 if tb.half else 0.5 * cell ** 2
+
+
+#: the graph drops the narrow lobe's albedo A when 1/A - 1 stays below this for θd <= 80° (ωi, ωo less than
+#: 160° apart): 1/A - 1 = (r - 1)/(r + 1) ≈ α² tan² θd / 4, so below α ≈ 0.011 (tables of res >= 9 by default)
+SVM_ALBEDO_TOL = 1e-3
+
+
+def svm_uses_albedo(tb: ClosureTables) -> bool:
+    """True if the node graph divides by the lobe albedo A (``lobe_albedo``); for the narrow default lobes A = 1
+    to within ``SVM_ALBEDO_TOL`` wherever it matters, and the graph saves its eight nodes."""
+    return bool(1.0 / lobe_albedo(np.cos(np.radians(80.0)), tb.alpha) - 1.0 > SVM_ALBEDO_TOL)
 
 
 def svm_images(tb: ClosureTables) -> dict:
@@ -656,7 +667,7 @@ def svm_images(tb: ClosureTables) -> dict:
 
     - ``"A"`` (n_o, D): row o = ωo node o's alias table (``alias_tables`` of ``tb.cdf``), texel (o, j):
       R = prob_j, G = alias_j - j, B = c / P_j, A = c / P_alias_j - c / P_j (c = ``svm_constant``; 0 for
-      P = 0): one Closest lookup at (h, (o + 1/2) / n_o) gives the bin and its 1/P_k;
+      P = 0): one Closest lookup at ((j + 1/2) / D, (o + 1/2) / n_o), j = floor(h D), gives the bin and its 1/P_k;
     - ``"F"`` (n_o (res+2), res+2): tile o = rows [o (res+2), (o+1)(res+2)), texel (o (res+2) + 1 + a, 1 + b)
       = RGB F[a res + b, o] (ωi cell a along s, b along t), bordered by a copy of its edge texels so that
       a Linear lookup at ((1 + ck + h_t) / (res+2), (o (res+2) + 1 + rk + h_s) / H) is the clamped bilinear
@@ -708,8 +719,8 @@ def svm_view_node(tb: ClosureTables, wo, u0, u1) -> np.ndarray:
     each of the four bilinear taps has its bilinear weight."""
     if tb.iso:
         th = np.arccos(np.clip(wo[:, 2], -1.0, 1.0))
-        x = np.clip(th / (0.5 * np.pi / tb.n_o) - 0.5, 0.0, tb.n_o - 1.0)
-        return np.floor(x + u0).astype(np.int64)
+        x = np.clip((th / (0.5 * np.pi / tb.n_o) - 0.5) / (tb.n_o - 1.0), 0.0, 1.0)
+        return np.floor(x * (tb.n_o - 1.0) + u0).astype(np.int64)
     A, B = wo[:, 0] + wo[:, 1], wo[:, 0] - wo[:, 1]
     d = np.maximum(np.abs(A), np.abs(B)) + wo[:, 2]
     xr = np.clip((A / d + 1.0) * 0.5 * tb.res - 0.5, 0.0, tb.res - 1.0)
@@ -718,14 +729,14 @@ def svm_view_node(tb: ClosureTables, wo, u0, u1) -> np.ndarray:
 
 
 def svm_alias_pick(images: dict, o, h):
-    """The graph's bin pick: j = floor(h M), texel A[o, j] (Closest), f = h M - j, the alias bin when
+    """The graph's bin pick: j = floor(h M), texel A[o, j] (Closest lookup at its centre), f = h M - j, the alias bin when
     prob_j < f.  Returns (bin k (N,), c / P_k (N,)); ``images`` from ``svm_images``."""
     A = images["A"]
     n_o, M = A.shape[:2]
     h = np.asarray(h, np.float32)
     uh = h * np.float32(M)
     j = np.floor(uh)
-    t = texture_closest(A, h, (np.asarray(o) + 0.5) / n_o)
+    t = texture_closest(A, (j + 0.5) / M, (np.asarray(o) + 0.5) / n_o)      # at the texel centre
     take = (t[:, 0] < uh - j).astype(np.float64)
     return (j + take * t[:, 1]).astype(np.int64), t[:, 2] + take * t[:, 3]
 
@@ -737,9 +748,9 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     P_k (``svm_alias_pick``), the target jittered uniformly in bin k, m the micro-normal mirroring ωo into
     the target, W = f cos θi / (p A).  The graph's arithmetic: with g = (ck + h_t, rk + h_s),
     q = Z ((g0 + g1) cell / 2 - 1, (g1 - g0) cell / 2), v = (q, 1 - |qx| - |qy|), x the target (|v| = len),
-    1/A = 2 r / (1 + r), r = √(1 - α² + α² / (ωo·m)²); ωi tables W = f qz cell² / (P_k len⁴) r / (1 + r),
-    half tables W = ρ (ωo·h) 8 Z² cell² / (ωo_z P_k) r / (1 + r) [ωi above the horizon]; f (ρ) from the
-    Linear lookup of the ``"F"`` atlas.  Returns (ωi (N, 3), m (N, 3), W (N, 3), p (N,)) as ``sample``."""
+    1/A = 2 r / (1 + r), r = √(1 - α² + α² / (ωo·m)²) (taken as 1 when ``svm_uses_albedo`` is False);
+    ωi tables W = f qz cell² / (2 P_k len⁴ A), half tables W = ρ (ωo·h) 4 Z² cell² / (ωo_z P_k A) [ωi above the
+    horizon]; f (ρ) from the Linear lookup of the ``"F"`` atlas.  Returns (ωi (N, 3), m (N, 3), W (N, 3), p (N,)) as ``sample``."""
     wo = _unit_rows("wo", wo)
     u = np.atleast_2d(np.asarray(u, np.float64))
     if u.shape != (len(wo), 5):
@@ -757,9 +768,9 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     qx, qy = Z * ((g0 + g1) * cell / 2 - 1.0), Z * (g1 - g0) * cell / 2
     qz = 1.0 - np.abs(qx) - np.abs(qy)
     if tb.iso:                                      # the frame turned about n so that ωo has azimuth 0
-        fx = np.stack([wo[:, 0] + 1e-6, wo[:, 1], np.zeros(len(wo))], -1)
-        fx /= np.linalg.norm(fx, axis=1, keepdims=True)
-        fy = np.stack([-fx[:, 1], fx[:, 0], np.zeros(len(wo))], -1)
+        fy = np.stack([-wo[:, 1], wo[:, 0] + 1e-6, np.zeros(len(wo))], -1)     # n x (ωo + 1e-6 t)
+        fy /= np.linalg.norm(fy, axis=1, keepdims=True)
+        fx = np.stack([fy[:, 1], -fy[:, 0], np.zeros(len(wo))], -1)             # fy x n
     else:
         fx, fy = np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])
     x = qx[:, None] * fx + qy[:, None] * fy + qz[:, None] * np.array([0, 0, 1.0])
@@ -772,19 +783,20 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
         h = x / ln[:, None]
         oh = np.sum(wo * h, 1)
         iz = 2.0 * oh * qz / ln - wo[:, 2]
-        wi, m = 2.0 * oh[:, None] * h - wo, h
-        r = np.sqrt(1.0 - a2 + a2 / np.where(oh != 0, oh * oh, np.inf))
-        s = oh * (iz > 0) / wo[:, 2] * invP * r / (1.0 + r)
+        wi, m, cd = 2.0 * oh[:, None] * h - wo, h, oh
+        s = oh * (iz > 0) / wo[:, 2] * invP
         p = p / (4.0 * np.abs(oh))
     else:
         wi = x / ln[:, None]
         m = x + ln[:, None] * wo
         m /= np.linalg.norm(m, axis=1, keepdims=True)
         cd = np.sum(wo * m, 1)
-        r = np.sqrt(1.0 - a2 + a2 / (cd * cd))
-        s = qz / (L2 * L2) * invP * r / (1.0 + r)
+        s = qz / (L2 * L2) * invP
+    if svm_uses_albedo(tb):                         # 1/A = 2 r / (1 + r), r = √(1 - α² + α² / cd²)
+        r = np.sqrt(1.0 - a2 + a2 / np.where(cd != 0, cd * cd, np.inf))
+        s = s * 2.0 * r / (1.0 + r)
     return wi, m, f * s[:, None], p
 
 
-__all__ += ["alias_tables", "alias_pmf", "svm_constant", "svm_images", "texture_closest", "texture_linear",
+__all__ += ["alias_tables", "alias_pmf", "svm_constant", "svm_uses_albedo", "SVM_ALBEDO_TOL", "svm_images", "texture_closest", "texture_linear",
             "svm_view_node", "svm_alias_pick", "sample_alias"]
