@@ -32,7 +32,7 @@ from .scratch_svm import _data_image, _G
 
 GROUP_PREFIX = "Scratch: Tabulated BRDF "
 IMAGE_PREFIX = "Scratch tabulated "
-VERSION = 2
+VERSION = 3
 #: largest image side the graph uses (GPU textures and EEVEE: 16384 on common hardware)
 MAX_IMAGE_SIDE = 16384
 
@@ -82,7 +82,7 @@ class _T(_G):
     def madd(self, a, b, c):
         """Vector Math Multiply Add a * b + c (a float socket or constant is broadcast to a vector)."""
         node = self.node("ShaderNodeVectorMath", operation="MULTIPLY_ADD")
-        for s, v in zip(node.inputs[:3], (a, b, c)):
+        for s, v in zip(node.inputs[:3], (a, b, c)):   # a float socket is converted to (v, v, v) by Blender
             self._set(s, (v, v, v) if isinstance(v, float) else v)
         return node.outputs["Vector"]
 
@@ -149,8 +149,7 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     j = g.math("FLOOR", uh)
     ta = g.node("ShaderNodeTexImage", image=imgs["A"], interpolation="Closest", extension="EXTEND")
     # at the texel centres ((j + 1/2) / M, (o + 1/2) / n_o): GPU texture units round coordinates to 1/256 texel
-    g._set(ta.inputs["Vector"], g.combine(g.math("MULTIPLY_ADD", j, 1.0 / D, 0.5 / D),
-                                          g.math("MULTIPLY_ADD", o, 1.0 / n_o, 0.5 / n_o)))
+    g._set(ta.inputs["Vector"], g.madd(j, (1.0 / D, 0.0, 0.0), g.madd(o, (0.0, 1.0 / n_o, 0.0), (0.5 / D, 0.5 / n_o, 0.0))))
     prob, d_alias, inv_pj = g.separate(ta.outputs["Color"])
     if _break == "alias":
         lo, inv_p = j, inv_pj
@@ -159,11 +158,11 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         lo = g.math("MULTIPLY_ADD", take, d_alias, j)
         inv_p = g.math("MULTIPLY_ADD", take, ta.outputs["Alpha"], inv_pj)
     rk = g.math("FLOOR", g.math("MULTIPLY_ADD", lo, 1.0 / res, 0.5 / res))
-    ck = g.math("MULTIPLY_ADD", rk, -float(res), lo)
-    gv = g.vmath("ADD", g.combine(ck, rk, 0.0), jit)                    # (ck + h_t, rk + h_s, -)
+    # (ck + h_t, rk + h_s, -) = (lo, 0, 0) + rk (-res, 1, 0) + jitter, ck = lo - res rk
+    gv = g.madd(rk, (-float(res), 1.0, 0.0), g.madd(lo, (1.0, 0.0, 0.0), jit))
     # f: Linear lookup in node o's padded tile
     W, H = res + 2, n_o * (res + 2)
-    off = g.combine(1.0 / W, g.math("MULTIPLY_ADD", o, (res + 2.0) / H, 1.0 / H), 0.0)
+    off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
     tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
     g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
     # 3. the target: q = Z ((g0 + g1) cell/2 - 1, (g1 - g0) cell/2) (one Mapping node: -45° and scale), v = (q, 1 - |q|₁)
