@@ -10,9 +10,11 @@ Rows: SVM anisotropic Glossy (the baseline), the same Glossy node on Cycles' OSL
 OSL: the backend's own overhead), an anisotropic 10² x 10² table (a bi-scale bake's size), an isotropic
 32² x 32 table (an analytic BRDF), a MERL import (``merl_ops.material_from_merl`` of a MERL-format file
 written from an analytic BRDF: iso 32² x 32) and a Dong NDF table (``make_ndf_material`` of the filtered
-NDF of a brushed height field: the half-vector table of ``ndf_brdf``).
+NDF of a brushed height field: the half-vector table of ``ndf_brdf``).  "SVM table" rows: the same materials on
+Cycles' default shading system (SVM), which renders the table as nodes (``node_groups/tabulated_svm``: alias-table
+bin pick, one narrow Glossy node).
 
-    .venv/bin/python -m bench tabulated_cost [--quick] [--spp 33] [--rounds 5] [--res 96]
+    .venv/bin/python -m bench tabulated_cost [--quick] [--spp 33] [--rounds 5] [--res 96] [--only SVM]
 """
 from __future__ import annotations
 
@@ -39,6 +41,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=33, help="N of (t(N) - t(1)) / (N - 1)")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--res", type=int, default=96)
+    ap.add_argument("--only", default=None, help="rows whose name contains this (and the baseline)")
     args = ap.parse_args(argv)
     if args.quick:
         args.spp, args.rounds, args.res = 5, 1, 48
@@ -75,13 +78,21 @@ def main(argv: list[str]) -> int:
     hf = gaussian_surface((256, 256), 0.5, 0.3, (20.0, 1.5), seed=2)          # brushed, as the operator test
     ndf = filtered_ndf(hf, sigma_um=1.0, resolution=513)
     ndf_mat = tabulated_material.make_ndf_material(ndf, "NDF table", F=(0.9, 0.9, 0.9))
+    aniso_mat = tabulated_material.make_tabulated_material(tb.TabulatedBRDF.from_function(glossy, 10), "aniso table")
+    iso_mat = tabulated_material.make_tabulated_material(
+        tb.TabulatedBRDF.from_function(glossy, 32, iso=True, n_theta=32), "iso table")
+    merl_mat = merl_ops.material_from_merl(merl_path, "MERL ggx")
     cases = [("SVM aniso Glossy", svm, False), ("OSL backend, same Glossy", svm, True),
-             ("table aniso 10²x10² (OSL)", tabulated_material.make_tabulated_material(
-                 tb.TabulatedBRDF.from_function(glossy, 10), "aniso table"), True),
-             ("table iso 32²x32 (OSL)", tabulated_material.make_tabulated_material(
-                 tb.TabulatedBRDF.from_function(glossy, 32, iso=True, n_theta=32), "iso table"), True),
-             ("MERL import iso 32²x32 (OSL)", merl_ops.material_from_merl(merl_path, "MERL ggx"), True),
-             (f"Dong NDF table {ndf_mat['tabulated_res']}² (OSL)", ndf_mat, True)]
+             ("table aniso 10²x10² (OSL)", aniso_mat, True),
+             ("table iso 32²x32 (OSL)", iso_mat, True),
+             ("MERL import iso 32²x32 (OSL)", merl_mat, True),
+             (f"Dong NDF table {ndf_mat['tabulated_res']}² (OSL)", ndf_mat, True),
+             # the same materials on Cycles' default shading system: the table as SVM nodes (node_groups/tabulated_svm)
+             ("SVM table aniso 10²x10²", aniso_mat, False),
+             ("SVM table iso 32²x32", iso_mat, False),
+             ("SVM table MERL iso 32²x32", merl_mat, False),
+             (f"SVM table Dong NDF {ndf_mat['tabulated_res']}² (half)", ndf_mat, False)]
+    cases = [c for c in cases if args.only is None or c[0] in ("SVM aniso Glossy",) or args.only in c[0]]
     times = {name: [] for name, _, _ in cases}
     load0 = os.getloadavg()
     for r in range(args.rounds):
@@ -98,7 +109,7 @@ def main(argv: list[str]) -> int:
             print(f"round {r}: {name:32s} {1e3 * times[name][-1]:8.2f} ms CPU / sample", flush=True)
     load1 = os.getloadavg()
     base = statistics.median(times["SVM aniso Glossy"])
-    osl_base = statistics.median(times["OSL backend, same Glossy"])
+    osl_base = statistics.median(times.get("OSL backend, same Glossy", times["SVM aniso Glossy"]))
     rows = [[name, f"{1e3 * statistics.median(v):.1f}", f"{statistics.median(v) / base:.2f}x",
              f"{statistics.median(v) / osl_base:.2f}x", " ".join(f"{x / b:.2f}" for x, b in
                                                                   zip(v, times['SVM aniso Glossy']))]

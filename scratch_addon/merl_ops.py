@@ -2,8 +2,9 @@
 ``material_from_merl``, the operator ``scratch.import_merl`` and its panel.
 
 The file is read and resampled by ``precompute.tables.merl`` onto the isotropic grid of the
-tabulated-BRDF closure; Cycles OSL renders it exactly (``osl/tabulated_brdf.osl``), SVM/GPU/EEVEE a
-Diffuse+Glossy least-squares twin (``scratch_addon.tabulated_material``).
+tabulated-BRDF closure; Cycles renders it exactly (OSL: ``osl/tabulated_brdf.osl``; SVM and GPU: the same
+closure as nodes, ``node_groups/tabulated_svm``), EEVEE a Diffuse+Glossy least-squares twin
+(``scratch_addon.tabulated_material``).
 
 Headless: ``bpy.ops.scratch.import_merl(filepath="gold-metallic-paint.binary")`` with a mesh active,
 or ``material_from_merl(path)``.
@@ -41,8 +42,8 @@ def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: in
 
 
 class SCRATCH_OT_import_merl(bpy.types.Operator):
-    """Import a measured BRDF (MERL .binary) as a material on the active object: exact in Cycles OSL,
-    a fitted Diffuse + Glossy twin elsewhere"""
+    """Import a measured BRDF (MERL .binary) as a material on the active object: the table itself in Cycles
+    (OSL or SVM, CPU or GPU), a fitted Diffuse + Glossy twin in EEVEE"""
 
     bl_idname = "scratch.import_merl"
     bl_label = "Import MERL BRDF"

@@ -90,12 +90,19 @@ def describe(material, scene) -> tuple[str, str]:
     if not has_osl(material):
         return "CHECKMARK", "Node groups: renders in Cycles (CPU, GPU, OSL or SVM) and EEVEE"
     iridescent = material.get("scratch_addon_iridescent_layer") is not None
-    what = "iridescent glints" if iridescent else "OSL shader"
+    table = material.get("tabulated_svm")            # tabulated BRDFs: "table" (node graph) or "fit"
+    what = "iridescent glints" if iridescent else "tabulated BRDF" if table else "OSL shader"
     if engine != "CYCLES":
-        twin = "the base material without glints" if iridescent else "its SVM twin (node groups)"
-        return "INFO", f"{engine.title().replace('_', ' ')} renders {twin}; the {what} needs Cycles OSL on the CPU"
+        twin = ("the base material without glints" if iridescent else "its fitted node twin (an approximation)"
+                if table else "its SVM twin (node groups)")
+        need = "Cycles" if table == "table" else "Cycles OSL on the CPU"
+        return "INFO", f"{engine.title().replace('_', ' ')} renders {twin}; the {what} needs {need}"
     if render_path.osl_renders(scene):
         return "CHECKMARK", f"Cycles renders the {what} (Shading System OSL, CPU)"
+    if table == "table":
+        return "CHECKMARK", "Cycles renders the tabulated BRDF as node groups (SVM, CPU or GPU)"
     why = "Shading System is SVM" if not scene.cycles.shading_system else "OSL runs on the CPU only"
+    if table:
+        return "INFO", f"Cycles renders the fitted node twin (an approximation; the table is too large): {why}"
     twin = "the base material without glints" if iridescent else "the SVM twin (binary scratch coverage)"
     return "INFO", f"Cycles renders {twin}: {why}"

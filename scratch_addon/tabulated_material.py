@@ -1,16 +1,22 @@
 """Tabulated-BRDF materials: any ``precompute.tables.tabulated_brdf.TabulatedBRDF`` as a Cycles material.
 
 Cycles OSL (CPU) renders the table exactly with ``osl/tabulated_brdf.osl`` (one narrow microfacet
-closure per sample, light sampling intact); Cycles SVM, GPU and EEVEE render a twin built from
-ordinary nodes (``render_paths``): a caller-supplied surface (bi-scale: its fitted closures) or the
-Diffuse + Glossy least-squares twin of ``tabulated_brdf.glossy_twin``.  The material's bump-map
-correction is off (it would bend the closure's micro-normal back to the geometric normal).
+closure per sample, light sampling intact); Cycles SVM (the default shading system, and GPU) renders the
+same closure from ordinary nodes (``node_groups.tabulated_svm``: alias-table bin pick, one narrow Glossy
+node; the table itself, not a fit).  EEVEE renders a twin built from ordinary nodes (``render_paths``): a
+caller-supplied surface (bi-scale: its fitted closures; Dong: the ellipsoid lobe) or the Diffuse + Glossy
+least-squares twin of ``tabulated_brdf.glossy_twin``: EEVEE's lighting does not integrate a one-sample
+narrow lobe (measured: a GGX + Lambert table renders 37 % too bright and speckled at 64 samples), so the
+table graph is for Cycles only.  Tables whose images would exceed ``tabulated_svm.MAX_IMAGE_SIDE`` (or
+``svm_table=False``) keep the fitted twin on Cycles SVM too.  The material's bump-map correction is off
+(it would bend the closure's micro-normal back to the geometric normal).
 """
 from __future__ import annotations
 
 import bpy
 import numpy as np
 
+from ..node_groups import tabulated_svm
 from ..osl import tabulated_brdf as tabulated_osl
 from ..precompute.cycles.glossy import glossy_node_params
 from ..precompute.tables import tabulated_brdf
@@ -36,6 +42,16 @@ def glossy_twin_surface(tree, twin: dict, location=(-300, -200)):
     return add.outputs["Shader"]
 
 
+def table_surface(tree, tables, location=(-300, 200)):
+    """The table graph (``node_groups.tabulated_svm``) of ``tables`` (``ClosureTables``) as a group node; returns
+    its BSDF socket."""
+    node = tree.nodes.new("ShaderNodeGroup")
+    node.node_tree = tabulated_svm.ensure(tables)
+    node.name = node.label = "Tabulated BRDF (SVM)"
+    node.location = location
+    return node.outputs["BSDF"]
+
+
 def tabulated_script(mat, source: str):
     """The table's INTERNAL OSL script node with UV Map and Tangent nodes wired in; returns its BSDF socket."""
     script = osl_compile.uv_script_node(mat.node_tree, f"{mat.name}.tabulated.osl", source)
@@ -43,24 +59,36 @@ def tabulated_script(mat, source: str):
 
 
 def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | None = None, svm_twin=None,
-                            kind: str = "tabulated") -> bpy.types.Material:
-    """Material rendering ``brdf`` (``TabulatedBRDF``) exactly in Cycles OSL and through a node twin
-    elsewhere.  ``svm_twin(tree) -> socket`` builds the twin (default: ``glossy_twin``);
-    ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).
+                            kind: str = "tabulated", svm_table: bool = True) -> bpy.types.Material:
+    """Material rendering ``brdf`` (``TabulatedBRDF``) exactly in Cycles (OSL: ``osl/tabulated_brdf.osl``;
+    SVM / GPU: the same closure as nodes, ``node_groups.tabulated_svm``) and through a fitted node twin in
+    EEVEE.  ``svm_twin(tree) -> socket`` builds that twin (default: ``glossy_twin``); it also renders Cycles
+    SVM when ``svm_table`` is False or the table exceeds the image limit (``tabulated_svm.fits``).
+    ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom property
+    ``tabulated_svm``: "table" or "fit" (what Cycles SVM renders).
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
     src = tabulated_osl.generate(brdf, alpha=alpha)      # ValueError before anything is created
+    tables = tabulated_brdf.closure_tables(brdf, alpha)
+    use_table = bool(svm_table) and tabulated_svm.fits(tables)
     twin = None if svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
+    n_groups, n_images = set(bpy.data.node_groups), set(bpy.data.images)
     mat = new_material(name)
     try:
         tree = mat.node_tree
-        svm = svm_twin(tree) if svm_twin is not None else glossy_twin_surface(tree, twin)
+        fitted = svm_twin(tree) if svm_twin is not None else glossy_twin_surface(tree, twin)
+        svm = table_surface(tree, tables) if use_table else fitted
         osl = tabulated_script(mat, src)
-    except Exception:
+    except BaseException:
         bpy.data.materials.remove(mat)
+        for ng in set(bpy.data.node_groups) - n_groups:
+            bpy.data.node_groups.remove(ng)
+        for img in set(bpy.data.images) - n_images:
+            bpy.data.images.remove(img)
         raise
-    render_paths.link_surface(tree, svm, osl, tree.nodes["Material Output"])
+    render_paths.link_surface(tree, svm, osl, tree.nodes["Material Output"], eevee_socket=fitted if use_table else None)
+    mat["tabulated_svm"] = "table" if use_table else "fit"
     mat.cycles.use_bump_map_correction = False
     mat["scratch_addon_kind"] = kind
     mat["tabulated_res"] = int(brdf.res)
@@ -79,8 +107,8 @@ def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: i
     filtered or Kirchhoff NDF of ``precompute.microgeometry.tables.compute_tables``) rendered as its own
     microfacet BRDF table (``precompute.microgeometry.ndf_brdf``: a half-vector table zoomed to the NDF's
     support), not its ellipsoid fit; reflectance ``F`` (RGB); ``res``: the half-vector grid side (default:
-    ``ndf_brdf.table_layout``).  The SVM/EEVEE twin: ``svm_twin(tree) -> socket`` (Material from Height
-    Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
+    ``ndf_brdf.table_layout``).  Cycles (OSL and SVM) renders the table; the EEVEE twin: ``svm_twin(tree) ->
+    socket`` (Material from Height Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
     from ..precompute.microgeometry import ndf_brdf
 
     mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, svm_twin=svm_twin,

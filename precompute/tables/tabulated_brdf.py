@@ -740,3 +740,209 @@ def glossy_twin(brdf: TabulatedBRDF) -> dict:
     err, alpha, coef = best
     return {"diffuse": np.clip(coef[0], 0, 1), "specular": np.clip(coef[1], 0, 1), "alpha": float(alpha),
             "rel_l1": err}
+
+
+# ----------------------------------------------------------------------------- the SVM node-graph twin
+# ``node_groups/tabulated_svm.py`` renders the same closure with ordinary nodes (Cycles SVM, GPU, EEVEE):
+# per-sample uniforms from White Noise, the ωi bin from an alias table (one Closest image lookup instead
+# of the CDF walk), f from a padded image atlas (one Linear lookup), one narrow GGX Glossy node.  The
+# functions below are its numpy twin: ``svm_images`` makes the images, ``sample_alias`` reads them the way
+# Cycles does (``texture_closest`` / ``texture_linear``) with the graph's arithmetic.
+
+def alias_tables(cdf):
+    """Walker's alias table of each row's bin distribution P_k = cdf[k+1] - cdf[k] (Vose's construction).
+
+    ``cdf`` (n, M+1) -> (prob (n, M), alias (n, M) int).  With one uniform h: u = h M, j = floor(u),
+    f = u - j; the bin is j if f <= prob_j, else alias_j (the graph's ``prob_j < f`` test).  It draws bin k
+    with probability exactly P_k (``alias_pmf``); zero bins get prob 0 (never drawn), empty rows prob 1."""
+    cdf = np.asarray(cdf, np.float64)
+    if cdf.ndim != 2 or cdf.shape[1] < 2:
+        raise ValueError(f"cdf: expected shape (n, M+1) with M >= 1, got {cdf.shape}")
+    n, M = cdf.shape[0], cdf.shape[1] - 1
+    p = np.clip(np.diff(cdf, axis=1), 0.0, None)
+    prob = np.ones((n, M))
+    alias = np.tile(np.arange(M), (n, 1))
+    for r in range(n):
+        tot = p[r].sum()
+        if tot <= 0:
+            continue
+        q = p[r] * (M / tot)
+        small = [j for j in range(M) if q[j] < 1.0]
+        large = [j for j in range(M) if q[j] >= 1.0]
+        while small and large:
+            j, k = small.pop(), large.pop()
+            prob[r, j], alias[r, j] = q[j], k
+            q[k] -= 1.0 - q[j]
+            (small if q[k] < 1.0 else large).append(k)
+        for j in small + large:               # round-off leftovers: themselves with probability 1
+            prob[r, j], alias[r, j] = (1.0 if p[r, j] > 0 else 0.0), j
+            if p[r, j] <= 0:                  # a zero bin left over (round-off): hand it to the largest bin
+                alias[r, j] = int(np.argmax(p[r]))
+    return prob, alias
+
+
+def alias_pmf(prob, alias) -> np.ndarray:
+    """The bin distribution (n, M) an alias table draws: (prob_k + Σ_{j: alias_j = k} (1 - prob_j)) / M."""
+    prob, alias = np.asarray(prob, np.float64), np.asarray(alias, int)
+    out = prob.copy()
+    for r in range(len(prob)):
+        np.add.at(out[r], alias[r], 1.0 - prob[r])
+    return out / prob.shape[1]
+
+
+def svm_constant(tb: ClosureTables) -> float:
+    """c in the alias image's c / P_k: W = f qz c / (P_k len⁴) / A (c = cell² / 2 for ωi tables) or
+    W = ρ (ωo·h) c / (ωo_z P_k) / A (c = 4 Z² cell² for half tables); ``sample_alias``."""
+    cell = 2.0 / tb.res
+    return 4.0 * tb.extent ** 2 * cell ** 2 if tb.half else 0.5 * cell ** 2
+
+
+#: the graph drops the narrow lobe's albedo A when 1/A - 1 stays below this for θd <= 80° (ωi, ωo less than
+#: 160° apart): 1/A - 1 = (r - 1)/(r + 1) ≈ α² tan² θd / 4, so below α ≈ 0.011 (tables of res >= 9 by default)
+SVM_ALBEDO_TOL = 1e-3
+
+
+def svm_uses_albedo(tb: ClosureTables) -> bool:
+    """True if the node graph divides by the lobe albedo A (``lobe_albedo``); for the narrow default lobes A = 1
+    to within ``SVM_ALBEDO_TOL`` wherever it matters, and the graph saves its eight nodes."""
+    return bool(1.0 / lobe_albedo(np.cos(np.radians(80.0)), tb.alpha) - 1.0 > SVM_ALBEDO_TOL)
+
+
+def svm_images(tb: ClosureTables) -> dict:
+    """Float32 RGBA arrays (rows, cols, 4), row 0 at the bottom (Blender's pixel order), of the node graph:
+
+    - ``"A"`` (n_o, D): row o = ωo node o's alias table (``alias_tables`` of ``tb.cdf``), texel (o, j):
+      R = prob_j, G = alias_j - j, B = c / P_j, A = c / P_alias_j - c / P_j (c = ``svm_constant``; 0 for
+      P = 0): one Closest lookup at ((j + 1/2) / D, (o + 1/2) / n_o), j = floor(h D), gives the bin and its 1/P_k;
+    - ``"F"`` (n_o (res+2), res+2): tile o = rows [o (res+2), (o+1)(res+2)), texel (o (res+2) + 1 + a, 1 + b)
+      = RGB F[a res + b, o] (ωi cell a along s, b along t), bordered by a copy of its edge texels so that
+      a Linear lookup at ((1 + ck + h_t) / (res+2), (o (res+2) + 1 + rk + h_s) / H) is the clamped bilinear
+      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile."""
+    res, n_o, D = tb.res, tb.n_o, tb.res * tb.res
+    cdf = tb.cdf.astype(np.float64)
+    P = np.diff(cdf, axis=1)
+    prob, alias = alias_tables(cdf)
+    c = svm_constant(tb)
+    inv = np.where(P > 0, c / np.where(P > 0, P, 1.0), 0.0)
+    a = np.zeros((n_o, D, 4))
+    a[..., 0], a[..., 1], a[..., 2] = prob, alias - np.arange(D), inv
+    a[..., 3] = np.take_along_axis(inv, alias, 1) - inv
+    F = tb.F.astype(np.float64).reshape(res, res, n_o, 3).transpose(2, 0, 1, 3)        # (o, a, b, rgb)
+    F = np.pad(F, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
+    f = np.zeros((n_o * (res + 2), res + 2, 4))
+    f[..., :3] = F.reshape(n_o * (res + 2), res + 2, 3)
+    return {"A": a.astype(np.float32), "F": f.astype(np.float32)}
+
+
+def texture_closest(img, x, y) -> np.ndarray:
+    """Cycles' Closest image lookup with extension EXTEND: texel (clamp(floor(y H)), clamp(floor(x W))) of
+    ``img`` (H, W, C), x, y in [0, 1] (float32 products, as the kernel)."""
+    H, W = img.shape[:2]
+    ix = np.clip(np.floor(np.float32(x) * np.float32(W)).astype(np.int64), 0, W - 1)
+    iy = np.clip(np.floor(np.float32(y) * np.float32(H)).astype(np.int64), 0, H - 1)
+    return img[iy, ix]
+
+
+def texture_linear(img, x, y) -> np.ndarray:
+    """Cycles' Linear image lookup with extension EXTEND: bilinear between texel centres (i + 1/2) / W."""
+    H, W = img.shape[:2]
+    fx = np.asarray(x, np.float64) * W - 0.5
+    fy = np.asarray(y, np.float64) * H - 0.5
+    ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+    tx, ty = (fx - ix)[:, None], (fy - iy)[:, None]
+    x0, x1 = np.clip(ix, 0, W - 1), np.clip(ix + 1, 0, W - 1)
+    y0, y1 = np.clip(iy, 0, H - 1), np.clip(iy + 1, 0, H - 1)
+    img = img.astype(np.float64)
+    return ((1 - ty) * ((1 - tx) * img[y0, x0] + tx * img[y0, x1]) + ty * ((1 - tx) * img[y1, x0] + tx * img[y1, x1]))
+
+
+def svm_view_node(tb: ClosureTables, wo, u0, u1) -> np.ndarray:
+    """The graph's ωo node (N,) for views ``wo`` (N, 3) (surface frame) and uniforms u0, u1: a node with
+    probability equal to its interpolation weight (``_view_taps``), drawn as floor(x + u) per axis.
+    Isotropic: x = clamp(θo / (π / 2 n_o) - 1/2, 0, n_o - 1), o = floor(x + u0).  Anisotropic: the
+    hemi-octahedral (s, t) of ωo (|ωx| + |ωy| = max(|ωx + ωy|, |ωx - ωy|)), (xr, xc) = clamp((s, t) + 1) res / 2
+    - 1/2, 0, res - 1), o = floor(xr + u0) res + floor(xc + u1): row and column drawn independently, so
+    each of the four bilinear taps has its bilinear weight."""
+    if tb.iso:
+        th = np.arccos(np.clip(wo[:, 2], -1.0, 1.0))
+        x = np.clip((th / (0.5 * np.pi / tb.n_o) - 0.5) / (tb.n_o - 1.0), 0.0, 1.0)
+        return np.floor(x * (tb.n_o - 1.0) + u0).astype(np.int64)
+    A, B = wo[:, 0] + wo[:, 1], wo[:, 0] - wo[:, 1]
+    d = np.maximum(np.abs(A), np.abs(B)) + wo[:, 2]
+    xr = np.clip((A / d + 1.0) * 0.5 * tb.res - 0.5, 0.0, tb.res - 1.0)
+    xc = np.clip((B / d + 1.0) * 0.5 * tb.res - 0.5, 0.0, tb.res - 1.0)
+    return np.floor(xr + u0).astype(np.int64) * tb.res + np.floor(xc + u1).astype(np.int64)
+
+
+def svm_alias_pick(images: dict, o, h):
+    """The graph's bin pick: j = floor(h M), texel A[o, j] (Closest lookup at its centre), f = h M - j, the alias bin when
+    prob_j < f.  Returns (bin k (N,), c / P_k (N,)); ``images`` from ``svm_images``."""
+    A = images["A"]
+    n_o, M = A.shape[:2]
+    h = np.asarray(h, np.float32)
+    uh = h * np.float32(M)
+    j = np.floor(uh)
+    t = texture_closest(A, (j + 0.5) / M, (np.asarray(o) + 0.5) / n_o)      # at the texel centre
+    take = (t[:, 0] < uh - j).astype(np.float64)
+    return (j + take * t[:, 1]).astype(np.int64), t[:, 2] + take * t[:, 3]
+
+
+def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
+    """Numpy twin of the SVM node graph (``node_groups/tabulated_svm``): views ``wo`` (N, 3) (surface frame,
+    z > 0), uniforms ``u`` (N, 5) = (h_o, h_o2, h_k, h_t, h_s) (two White Noise colours).  Same closure as
+    ``sample``: the ωo node with its interpolation weight (``svm_view_node``), the ωi bin k with probability
+    P_k (``svm_alias_pick``), the target jittered uniformly in bin k, m the micro-normal mirroring ωo into
+    the target, W = f cos θi / (p A).  The graph's arithmetic: with g = (ck + h_t, rk + h_s),
+    q = Z ((g0 + g1) cell / 2 - 1, (g1 - g0) cell / 2), v = (q, 1 - |qx| - |qy|), x the target (|v| = len),
+    1/A = 2 r / (1 + r), r = √(1 - α² + α² / (ωo·m)²) (taken as 1 when ``svm_uses_albedo`` is False);
+    ωi tables W = f qz cell² / (2 P_k len⁴ A), half tables W = ρ (ωo·h) 4 Z² cell² / (ωo_z P_k A) [ωi above the
+    horizon]; f (ρ) from the Linear lookup of the ``"F"`` atlas.  Returns (ωi (N, 3), m (N, 3), W (N, 3), p (N,)) as ``sample``."""
+    wo = _unit_rows("wo", wo)
+    u = np.atleast_2d(np.asarray(u, np.float64))
+    if u.shape != (len(wo), 5):
+        raise ValueError(f"u: expected shape ({len(wo)}, 5), got {u.shape}")
+    images = svm_images(tb) if images is None else images
+    res, n_o, cell = tb.res, tb.n_o, 2.0 / tb.res
+    Z = tb.extent if tb.half else 1.0
+    o = svm_view_node(tb, wo, u[:, 0], u[:, 1])
+    k, invP = svm_alias_pick(images, o, u[:, 2])
+    rk = np.floor((k + 0.5) / res)
+    ck = k - res * rk
+    g0, g1 = ck + u[:, 3], rk + u[:, 4]
+    Fimg = images["F"]
+    f = texture_linear(Fimg, (1.0 + g0) / Fimg.shape[1], (o * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
+    qx, qy = Z * ((g0 + g1) * cell / 2 - 1.0), Z * (g1 - g0) * cell / 2
+    qz = 1.0 - np.abs(qx) - np.abs(qy)
+    if tb.iso:                                      # the frame turned about n so that ωo has azimuth 0
+        fy = np.stack([-wo[:, 1], wo[:, 0] + 1e-6, np.zeros(len(wo))], -1)     # n x (ωo + 1e-6 t)
+        fy /= np.linalg.norm(fy, axis=1, keepdims=True)
+        fx = np.stack([fy[:, 1], -fy[:, 0], np.zeros(len(wo))], -1)             # fy x n
+    else:
+        fx, fy = np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]])
+    x = qx[:, None] * fx + qy[:, None] * fy + qz[:, None] * np.array([0, 0, 1.0])
+    L2 = np.sum(x * x, 1)
+    ln = np.sqrt(L2)
+    P = tb.cdf.astype(np.float64)[o, k + 1] - tb.cdf.astype(np.float64)[o, k]
+    p = P / (Z * Z * cell * cell * 0.5 / ln ** 3)
+    a2 = tb.alpha ** 2
+    if tb.half:
+        h = x / ln[:, None]
+        oh = np.sum(wo * h, 1)
+        iz = 2.0 * oh * qz / ln - wo[:, 2]
+        wi, m, cd = 2.0 * oh[:, None] * h - wo, h, oh
+        s = oh * (iz > 0) / wo[:, 2] * invP
+        p = p / (4.0 * np.abs(oh))
+    else:
+        wi = x / ln[:, None]
+        m = x + ln[:, None] * wo
+        m /= np.linalg.norm(m, axis=1, keepdims=True)
+        cd = np.sum(wo * m, 1)
+        s = qz / (L2 * L2) * invP
+    if svm_uses_albedo(tb):                         # 1/A = 2 r / (1 + r), r = √(1 - α² + α² / cd²)
+        r = np.sqrt(1.0 - a2 + a2 / np.where(cd != 0, cd * cd, np.inf))
+        s = s * 2.0 * r / (1.0 + r)
+    return wi, m, f * s[:, None], p
+
+
+__all__ += ["alias_tables", "alias_pmf", "svm_constant", "svm_uses_albedo", "SVM_ALBEDO_TOL", "svm_images", "texture_closest", "texture_linear",
+            "svm_view_node", "svm_alias_pick", "sample_alias"]

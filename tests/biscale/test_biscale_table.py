@@ -111,7 +111,10 @@ def test_bake_operator_makes_the_table_by_default(addon, scene):
         assert not m.cycles.use_bump_map_correction
         switch = m.node_tree.nodes["Scratch Render Path"]
         assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
-        assert switch.inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"   # the fitted twin
+        assert m["tabulated_svm"] == "table"          # Cycles SVM: the table itself as node groups
+        assert switch.inputs[1].links[0].from_node.node_tree.name.startswith("Scratch: Tabulated BRDF ")
+        eevee = m.node_tree.nodes["Material Output (EEVEE)"].inputs["Surface"].links[0].from_node
+        assert eevee.bl_idname == "ShaderNodeAddShader"   # EEVEE: the fitted twin
         n_mat = len(bpy.data.materials)
         with pytest.raises(RuntimeError, match="Direction Resolution.*at most 19"):   # the panel's name
             bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=24)
