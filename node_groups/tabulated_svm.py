@@ -46,8 +46,12 @@ MAX_IMAGE_SIDE = 16384
 
 
 def fits(tb: tbm.ClosureTables) -> bool:
-    """True if the table's images stay within ``MAX_IMAGE_SIDE`` (the alias rows are res² wide, the F atlas
-    n_o (res + 2) tall)."""
+    """True if the graph can render the table: its images stay within ``MAX_IMAGE_SIDE`` (the alias rows are
+    res² wide, the F atlas n_o (res + 2) tall) and its ωo nodes are the default ones (uniform θo / the
+    hemi-octahedral grid: the graph's view-node pick); a table on a view grid (``view_a`` / ``view_b``, the
+    bi-scale bake's default) keeps the fitted twin on SVM."""
+    if getattr(tb, "view_a", None) is not None:
+        return False
     return tb.res * tb.res <= MAX_IMAGE_SIDE and tb.n_o * (tb.res + 2) <= MAX_IMAGE_SIDE
 
 

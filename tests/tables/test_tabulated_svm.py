@@ -443,3 +443,14 @@ def test_material_wiring_and_fallbacks(addon, scene, tm, tables):
     assert f.node_tree.nodes[rp.SWITCH_NAME].inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"
     sc.render.engine = "CYCLES"
     assert "fitted node twin" in rp.describe(f, sc)[1]
+
+
+@pytest.mark.bpy
+def test_view_grid_tables_keep_the_fitted_twin(ts):
+    """The graph picks its ωo node on the default grid (uniform θo / hemi-octahedral); a table on a view grid
+    (``view_a`` / ``view_b``: the bi-scale bake's default since issue 16's view events) must not be read with it."""
+    svm = ts
+    f = lambda wi, wo: np.full(wi.shape[:-1] + (3,), 0.2)
+    plain = tb.TabulatedBRDF.from_function(f, 6)
+    grid = tb.TabulatedBRDF.from_function(f, 6, view_a=tb.view_grid_nodes(7, events=(0.3,)), view_b=tb.view_grid_nodes(7))
+    assert svm.fits(tb.closure_tables(plain)) and not svm.fits(tb.closure_tables(grid))
