@@ -35,7 +35,7 @@ import numpy as np
 
 from ..precompute.cycles.glossy import glossy_node_params
 from ..precompute.tables import tabulated_brdf as tbm
-from . import add_socket
+from . import add_socket, ensure_group
 from .scratch_svm import _data_image, _G
 
 GROUP_PREFIX = "Scratch: Tabulated BRDF "
@@ -77,17 +77,7 @@ def ensure(tb: tbm.ClosureTables, _break: str | None = None) -> bpy.types.Shader
     if not fits(tb):
         raise ValueError(f"table: res {tb.res}, {tb.n_o} view nodes exceed the {MAX_IMAGE_SIDE}-texel image limit")
     name = GROUP_PREFIX + table_hash(tb) + (f" broken {_break}" if _break else "")
-    ng = bpy.data.node_groups.get(name)
-    if ng is not None and ng.get("scratch_addon_version") == VERSION:
-        return ng
-    if ng is None:
-        ng = bpy.data.node_groups.new(name, "ShaderNodeTree")
-    else:
-        ng.nodes.clear()
-        ng.interface.clear()
-    _build(ng, tb, images(tb), _break)
-    ng["scratch_addon_version"] = VERSION
-    return ng
+    return ensure_group(name, VERSION, lambda ng: _build(ng, tb, images(tb), _break))
 
 
 class _T(_G):

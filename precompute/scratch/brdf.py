@@ -392,6 +392,24 @@ def _trace_nodes(verts, phi, fresnel, cos_scales, max_bounces, scan_tail=False):
     return dict(node=phi[rec.sample], pid=rec.pid, nb=rec.bounces, phi_o=rec.phi_o, W=W, bd=rec.bounds), rec.lost
 
 
+
+def _energy_scale(group, exact, energy, target) -> np.ndarray:
+    """Per-piece factor meeting each sub-bin's energy target: the pieces outside the single-event model
+    (``~exact``) are rescaled together so the sub-bin holds ``target``; where that is impossible (the
+    modelled pieces alone exceed it) every piece of the sub-bin is scaled; factors outside [0.5, 2] are
+    left at 1 (``group``: each piece's sub-bin, ``energy``: its integral)."""
+    MK = target.size
+    got_exact = np.bincount(group, np.where(exact, energy, 0.0), minlength=MK)
+    got_other = np.bincount(group, np.where(exact, 0.0, energy), minlength=MK)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        fac = np.where(got_other > 0, (target - got_exact) / got_other, 1.0)
+        fac_all = target / (got_exact + got_other)
+    ok_other = (got_other > 0) & np.isfinite(fac) & (fac > 0.5) & (fac < 2.0)
+    ok_all = ~ok_other & np.isfinite(fac_all) & (fac_all > 0.5) & (fac_all < 2.0)
+    fac = np.where(ok_other, fac, 1.0)
+    fac_all = np.where(ok_all, fac_all, 1.0)
+    return np.where(exact, 1.0, fac[group]) * fac_all[group]
+
 def _integrate(recs, edges, nodes, lost_nodes, M, split):
     """Cosine-weighted integrals of every path over every phi_i sub-bin ``[edges[b], edges[b+1]]``.
 
@@ -556,17 +574,8 @@ def _integrate(recs, edges, nodes, lost_nodes, M, split):
     # energy check of each sub-bin: integral of cos(phi) (1 - lost), lost linear between nodes.
     # Pieces of paths outside the single-event model are rescaled together to meet it.
     gs = gb[g]
-    got_exact = np.bincount(gs, np.where(swg, I[:, 0], 0.0), minlength=MK)
-    got_other = np.bincount(gs, np.where(swg, 0.0, I[:, 0]), minlength=MK)
     # Where that is not possible (the modelled pieces alone exceed the target), all pieces are scaled.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fac = np.where(got_other > 0, (target - got_exact) / got_other, 1.0)
-        fac_all = target / (got_exact + got_other)
-    ok_other = (got_other > 0) & np.isfinite(fac) & (fac > 0.5) & (fac < 2.0)
-    ok_all = ~ok_other & np.isfinite(fac_all) & (fac_all > 0.5) & (fac_all < 2.0)
-    fac = np.where(ok_other, fac, 1.0)
-    fac_all = np.where(ok_all, fac_all, 1.0)
-    I *= (np.where(swg, 1.0, fac[gs]) * fac_all[gs])[:, None]
+    I *= _energy_scale(gs, swg, I[:, 0], target)[:, None]
     ibin = _bin_index(0.5 * (edges[gs] + edges[gs + 1]), M) - i_lo
     cls = np.minimum(nb[r0][g], 3) - 1 if split else np.zeros(g.size, np.intp)
     ncls = 3 if split else 1
@@ -680,17 +689,7 @@ def _integrate_wide(M, span, i_lo, ncol, target, gb, pa, pb, sgn, c, A0, B0, has
     per_path = np.zeros(G)
     per_path[R] = Ibp.sum(1)
     per_path += np.bincount(g, Ibxp, minlength=G)
-    MK = target.size
-    got_exact = np.bincount(gb, np.where(switch, per_path, 0.0), minlength=MK)
-    got_other = np.bincount(gb, np.where(switch, 0.0, per_path), minlength=MK)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fac = np.where(got_other > 0, (target - got_exact) / got_other, 1.0)
-        fac_all = target / (got_exact + got_other)
-    ok_other = (got_other > 0) & np.isfinite(fac) & (fac > 0.5) & (fac < 2.0)
-    ok_all = ~ok_other & np.isfinite(fac_all) & (fac_all > 0.5) & (fac_all < 2.0)
-    fac = np.where(ok_other, fac, 1.0)
-    fac_all = np.where(ok_all, fac_all, 1.0)
-    sc = np.where(switch, 1.0, fac[gb]) * fac_all[gb]
+    sc = _energy_scale(gb, switch, per_path, target)
     scr, scx = sc[R, None], sc[g]
     n = ncls * M * ncol
     acc = np.empty((nW, ncls, M, ncol))

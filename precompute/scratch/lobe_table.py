@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..tables.alias import alias_pmf, alias_tables as _alias_table
 from ..cycles.ggx import cone_collapse_binned_jittered, cone_collapse_binned_jittered_windows
 from ..validation import check_int, check_range, finite
 from .lobe_fit import phi_bin_centres, phi_bin_edges, relative_l1
@@ -256,39 +257,6 @@ def alias_table(cdf):
 #: the construction is a Python loop, ~15 ms for 85 x 256 bins); bounded (about 0.4 MB each at M = 256)
 _ALIAS: dict = {}
 _ALIAS_MAX = 32
-
-
-def _alias_table(cdf):
-    S, M = cdf.shape[0], cdf.shape[1] - 1
-    p = np.clip(np.diff(cdf, axis=1), 0.0, None)
-    prob = np.ones((S, M))
-    alias = np.tile(np.arange(M), (S, 1))
-    for s in range(S):
-        tot = p[s].sum()
-        if tot <= 0:
-            continue
-        q = p[s] * (M / tot)
-        small = [j for j in range(M) if q[j] < 1.0]
-        large = [j for j in range(M) if q[j] >= 1.0]
-        while small and large:
-            j, k = small.pop(), large.pop()
-            prob[s, j], alias[s, j] = q[j], k
-            q[k] -= 1.0 - q[j]
-            (small if q[k] < 1.0 else large).append(k)
-        for j in small + large:  # round-off leftovers: probability 1 of themselves
-            prob[s, j], alias[s, j] = 1.0, j
-    return prob, alias
-
-
-def alias_pmf(prob, alias):
-    """The bin distribution an alias table samples, [S, M]: (prob_b + Σ_{j: alias_j = b} (1 - prob_j)) / M."""
-    prob = np.asarray(prob, float)
-    alias = np.asarray(alias, int)
-    S, M = prob.shape
-    out = prob.copy()
-    for s in range(S):
-        np.add.at(out[s], alias[s], 1.0 - prob[s])
-    return out / M
 
 
 def sample_alias(prob, alias, s, h):

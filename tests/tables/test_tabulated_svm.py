@@ -16,19 +16,8 @@ from scipy import stats
 from scratch_materials.precompute.tables import tabulated_brdf as tb
 
 
-def ggx_plus_diffuse(alpha=0.25, ks=0.9, kd=(0.05, 0.1, 0.2)):
-    def f(wi, wo):
-        return ks * tb._ggx_unit(wi, wo, alpha)[:, None] * np.ones(3) + np.asarray(kd) / np.pi
-    return f
-
-
-def aniso_brdf(wi, wo):
-    """Reciprocal, brighter towards +x, a stretched lobe around the mirror direction."""
-    r = np.stack([-wo[:, 0], -wo[:, 1], wo[:, 2]], -1)
-    d = wi - r
-    lobe = np.exp(-(d[:, 0] / 0.35) ** 2 - (d[:, 1] / 0.12) ** 2)
-    v = 0.05 + 0.2 * (np.maximum(wi[:, 0], 0) + np.maximum(wo[:, 0], 0)) + 1.2 * lobe
-    return v[:, None] * np.array([1.0, 0.8, 0.6])
+from test_tabulated_brdf import ggx_plus_diffuse          # noqa: E402  (the same analytic BRDFs)
+from test_tabulated_cycles import aniso_brdf                # noqa: E402
 
 
 @pytest.fixture(scope="module")
