@@ -148,6 +148,17 @@ def _fast_figure(tables: dict, name: str, M: int, stride) -> None:
     fig.savefig(out_path(f"scratch_tracer_fast_{M}.png"), dpi=110)
 
 
+def _baseline_tree(a, tmp: str) -> str | None:
+    """The tree to A/B against: ``--baseline-dir``, or ``--baseline-rev`` extracted under ``tmp``, or None."""
+    if a.baseline_dir or not a.baseline_rev:
+        return a.baseline_dir
+    base = os.path.join(tmp, "baseline")
+    os.makedirs(base)
+    arc = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline_rev], capture_output=True, check=True)
+    subprocess.run(["tar", "-x", "-C", base], input=arc.stdout, check=True)
+    return base
+
+
 def _fast_main(a) -> int:
     import numpy as np
 
@@ -155,12 +166,7 @@ def _fast_main(a) -> int:
     rows = []
     names = a.profiles if a.profiles_given else ["measured-4096", "smooth-4096", "quartic-100k", "vgroove"]
     with tempfile.TemporaryDirectory() as tmp:
-        base = a.baseline_dir
-        if a.baseline_rev and not base:
-            base = os.path.join(tmp, "baseline")
-            os.makedirs(base)
-            arc = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline_rev], capture_output=True, check=True)
-            subprocess.run(["tar", "-x", "-C", base], input=arc.stdout, check=True)
+        base = _baseline_tree(a, tmp)
         for M in a.res:
             for name in names:
                 ex, fa, fb = [], [], []
@@ -235,12 +241,7 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()
     rows, plot = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        base = a.baseline_dir
-        if a.baseline_rev and not base:
-            base = os.path.join(tmp, "baseline")
-            os.makedirs(base)
-            arc = subprocess.run(["git", "-C", str(ROOT), "archive", a.baseline_rev], capture_output=True, check=True)
-            subprocess.run(["tar", "-x", "-C", base], input=arc.stdout, check=True)
+        base = _baseline_tree(a, tmp)
         for M in a.res:
             for name in a.profiles:
                 ref = _case(ROOT, name, M, 0.0, tmp, "ref") if a.reference else None

@@ -16,7 +16,7 @@ from scipy import stats
 from scratch_materials.precompute.tables import tabulated_brdf as tb
 
 
-from test_tabulated_brdf import ggx_plus_diffuse          # noqa: E402  (the same analytic BRDFs)
+from test_tabulated_brdf import chi2_directions, ggx_plus_diffuse   # noqa: E402  (the same BRDFs and test)
 from test_tabulated_cycles import aniso_brdf                # noqa: E402
 
 
@@ -73,26 +73,10 @@ def _bins_pvalue(obs, P):
 
 
 def _chi2_pvalue(T, wo, wo_sampled, n=40000, seed=0, nt=10, npf=20):
-    """p-value of the chi-square test of ``sample_alias`` (at ``wo_sampled``) against ``pdf`` (at ``wo``) on
-    nt x npf bins in (cos θ, φ), bins with expected count < 5 merged (as tests/tables/test_tabulated_brdf)."""
-    wi, _, W, _ = tb.sample_alias(T, np.repeat(wo_sampled[None], n, 0), np.random.default_rng(seed).random((n, 5)))
-    wi = wi[wi[:, 2] > 0]
-    mu = np.clip(wi[:, 2], 0, 1 - 1e-12)
-    ph = np.mod(np.arctan2(wi[:, 1], wi[:, 0]), 2 * np.pi)
-    obs = np.histogram2d(mu, ph, [np.linspace(0, 1, nt + 1), np.linspace(0, 2 * np.pi, npf + 1)])[0].ravel()
-    sub = 12
-    m = (np.arange(nt * sub) + 0.5) / (nt * sub)
-    p = (np.arange(npf * sub) + 0.5) / (npf * sub) * 2 * np.pi
-    M, PH = np.meshgrid(m, p, indexing="ij")
-    s = np.sqrt(1 - M ** 2)
-    w = np.stack([s * np.cos(PH), s * np.sin(PH), M], -1).reshape(-1, 3)
-    dens = tb.pdf(T, w, np.repeat(wo[None], len(w), 0)).reshape(nt, sub, npf, sub)
-    exp = dens.sum((1, 3)).ravel() * (1.0 / (nt * sub)) * (2 * np.pi / (npf * sub)) * n
-    big = exp >= 5
-    o = np.append(obs[big], obs[~big].sum())
-    e = np.append(exp[big], exp[~big].sum())
-    e *= o.sum() / e.sum()
-    return stats.chi2.sf(((o - e) ** 2 / np.maximum(e, 1e-12)).sum(), len(o) - 1)
+    """``test_tabulated_brdf.chi2_directions`` of ``sample_alias`` (at ``wo_sampled``, directions above the
+    horizon) against ``pdf`` (at ``wo``)."""
+    wi, _, _, _ = tb.sample_alias(T, np.repeat(wo_sampled[None], n, 0), np.random.default_rng(seed).random((n, 5)))
+    return chi2_directions(T, wi[wi[:, 2] > 0], wo, n, nt, npf, total=False)
 
 
 @pytest.mark.parametrize("kind, wo", [("aniso", (0.45, 0.2, 0.8)), ("aniso", (-0.9, 0.1, 0.3)),
