@@ -321,6 +321,14 @@ def _relax(phi):
     return np.maximum(1.0, np.cos(GRAZING) / np.maximum(np.cos(phi), 1e-3))
 
 
+def _per_sample(smp, n: int, *arrays) -> list:
+    """Exit records grouped by their slice: for each k < n, the tuple of ``arrays`` rows with ``smp == k``
+    (in their original order)."""
+    order = np.argsort(smp, kind="stable")
+    cuts = np.searchsorted(smp[order], np.arange(n + 1))
+    return [tuple(a[order[cuts[k]:cuts[k + 1]]] for a in arrays) for k in range(n)]
+
+
 def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes, theta=None, records=None):
     """Adaptive φo nodes: indices on the grid of G = base 2^levels cells and their rows (see module doc).
 
@@ -340,11 +348,7 @@ def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes, theta=None, re
         # slice 0 of the θo samples is θo = 0: the same Fresnel weights as a trace at [0.0] alone, bit for bit
         smp, po, w, nb, fw = exact_slice(profile, ph, fresnel, theta if keep else [0.0] if fresnel is not None else ())
         if keep:
-            order = np.argsort(smp, kind="stable")
-            cuts = np.searchsorted(smp[order], np.arange(len(new) + 1))
-            for j, i in enumerate(new):
-                sel = order[cuts[j]:cuts[j + 1]]
-                records[i] = (po[sel], w[sel], nb[sel], fw[sel])
+            records.update(zip(new, _per_sample(smp, len(new), po, w, nb, fw)))
             fw = fw[:, :1]
         mass, cen, even = _bin_rows(smp, po, w, nb, len(new), M)[:3]
         f = np.stack([np.ones_like(po), np.sin(po), np.cos(po), np.sin(po) ** 2], -1)
@@ -411,12 +415,9 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     known = [None] * phi.size if known is None else list(known)
     todo = [s for s in range(phi.size) if known[s] is None]
     if todo:
-        t_smp, t_po, t_w, t_nb, t_fw = exact_slice(profile, phi[todo], fresnel, th)
-        order = np.argsort(t_smp, kind="stable")
-        cuts = np.searchsorted(t_smp[order], np.arange(len(todo) + 1))
-        for j, s in enumerate(todo):
-            sel = order[cuts[j]:cuts[j + 1]]
-            known[s] = (t_po[sel], t_w[sel], t_nb[sel], t_fw[sel])
+        t_smp, *t_rec = exact_slice(profile, phi[todo], fresnel, th)
+        for s, rec in zip(todo, _per_sample(t_smp, len(todo), *t_rec)):
+            known[s] = rec
     smp = np.concatenate([np.full(r[0].size, s, np.int64) for s, r in enumerate(known)])
     po, w, nb, fw = (np.concatenate([r[q] for r in known]) for q in range(4))
     mass_b, _, _, fm_b = _bin_rows(smp, po, w, nb, phi.size, M, fw)                   # fm [S, M, T, C]
