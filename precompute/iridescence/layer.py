@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .model import RGB_WAVELENGTHS_UM as _RGB
-from .scratch_set import GRID_BLOCK, GRID_CHUNK, _corridor_bound, corridor_cells, csr_from_pairs
+from .scratch_set import GRID_BLOCK, GRID_CHUNK, corridor_bound, corridor_cells, csr_from_pairs
 
 SIGMA_UM = 60.0
 RGB_WAVELENGTHS_UM = tuple(float(x) for x in _RGB)
@@ -165,7 +165,7 @@ def reach_grid(p0, p1, reach_uv: float, max_cells: int = MAX_CELLS, cell_frac: f
         q0, q1 = p0[s0:s0 + GRID_BLOCK], p1[s0:s0 + GRID_BLOCK]
         blo = np.clip(np.floor((np.minimum(q0, q1) - reach_uv - lo) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
         bhi = np.clip(np.floor((np.maximum(q0, q1) + reach_uv - lo) / cell).astype(np.int64), 0, [nx - 1, ny - 1])
-        cum = np.cumsum(_corridor_bound(q0, q1, blo, bhi, 1.0 + 2.0 * R))
+        cum = np.cumsum(corridor_bound(q0, q1, blo, bhi, 1.0 + 2.0 * R))
         a = 0
         while a < len(q0):
             b = max(int(np.searchsorted(cum, (cum[a - 1] if a else 0) + GRID_CHUNK, side="right")), a + 1)

@@ -279,7 +279,7 @@ def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells:
     for s0 in range(0, M, GRID_BLOCK):            # blocks of segments, then chunks of ~GRID_CHUNK candidates
         p0, p1 = scratches.p0[s0:s0 + GRID_BLOCK], scratches.p1[s0:s0 + GRID_BLOCK]
         blo, bhi, _ = grid._cell_range(np.minimum(p0, p1), np.maximum(p0, p1))
-        cum = np.cumsum(_corridor_bound(p0, p1, blo, bhi))
+        cum = np.cumsum(corridor_bound(p0, p1, blo, bhi))
         a = 0
         while a < len(p0):
             b = max(int(np.searchsorted(cum, (cum[a - 1] if a else 0) + GRID_CHUNK, side="right")), a + 1)
@@ -298,7 +298,7 @@ def build_grid(scratches: ScratchSet, cell_size: float | None = None, max_cells:
 _H = 0.5 * np.sqrt(2.0) * (1.0 + 1e-6)
 
 
-def _corridor_bound(p0, p1, blo, bhi, width: float = 2.0 * _H) -> np.ndarray:
+def corridor_bound(p0, p1, blo, bhi, width: float = 2.0 * _H) -> np.ndarray:
     """Upper bound of ``corridor_cells``' candidates per segment: major-axis columns x at most
     2 width + 2 rows (slope <= 1)."""
     span = bhi - blo + 1
