@@ -49,6 +49,9 @@ GROUPS = {
     "render_cycles_svm": "each material not black in Cycles with the default shading system (SVM)",
     "render_eevee": "each material not black in EEVEE",
     "render_cycles_osl": "each material not black in Cycles with OSL on",
+    "live": "panel edits reach the material with no operator call (a socket value, a table value); a keyframed "
+            "density renders differently on two frames",
+    "measured_brdf": "a MERL-format file of a Lambertian imports and renders like the grey diffuse of its albedo",
     "save_reopen": "save the .blend, reopen, same Cycles SVM render",
     "disable_enable": "render with the add-on disabled, re-enable, operators work, same render",
     "uninstall": "uninstall removes the extension and its module",
@@ -66,6 +69,10 @@ def group_of(step: str) -> str:
     if head in ("preset", "update_material", "biscale_tile", "biscale_bake", "heightfield", "heightfield_texture",
                 "iridescent_layer"):
         return "materials"
+    if head in ("live_socket", "live_table", "live_keyframes"):
+        return "live"
+    if head in ("merl", "merl_vs_diffuse"):
+        return "measured_brdf"
     if head in ("save_blend", "reopen_blend", "reopen"):
         return "save_reopen"
     if head in ("disable_addon", "disabled", "enable_addon", "reenabled"):
@@ -188,18 +195,19 @@ def stock_runs(request, stock_zip, tmp_path_factory) -> dict[str, StockRun]:
     return runs
 
 
-#: The bpy 4.2 *module* (not the Blender 4.2 application) segfaults at interpreter exit once any class with
-#: a Python property callback (enum items or update) was registered, even after it was unregistered:
-#: ``SpaceType::~SpaceType`` -> ``bpy_class_free`` -> ``PyGILState_Ensure`` on a finalised interpreter
-#: (a static destructor; gdb backtrace).  This add-on-free script reproduces it; the tier attributes an
-#: exit crash of the driver to it only if the reproducer crashes the same way in the same environment.
+#: The bpy 4.2 *module* (not the Blender 4.2 application) segfaults at interpreter exit once any Python class was
+#: registered into a space type — a single Operator or Panel class does it (a PropertyGroup with an update callback,
+#: unregistered again, too): ``SpaceType::~SpaceType`` -> ``bpy_class_free`` -> ``PyGILState_Ensure`` on a finalised
+#: interpreter (a static destructor; gdb backtrace).  This add-on-free script (one operator, what every add-on
+#: registers) reproduces it; the tier attributes an exit crash of the driver to it only if the reproducer crashes
+#: the same way in the same environment.
 UPSTREAM_EXIT_CRASH = """
 import os, sys, tempfile
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
 import bpy
-P = type("P", (bpy.types.PropertyGroup,), {"__annotations__": {"x": bpy.props.FloatProperty(update=lambda s, c: None)}})
-bpy.utils.register_class(P)
-bpy.utils.unregister_class(P)
+O = type("REPRO_OT_x", (bpy.types.Operator,), {"bl_idname": "repro.x", "bl_label": "x",
+                                              "execute": lambda self, context: {"FINISHED"}})
+bpy.utils.register_class(O)
 print("done", flush=True)
 """
 
