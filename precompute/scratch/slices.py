@@ -254,19 +254,23 @@ def aim_interval(M: int, centroid, even, phi_node, phi_o):
 
 
 def interval_moments(lo, hi):
-    """Mean of (1, sin, cos, sin²) of φ uniform in [lo, hi] ∩ [-π/2, π/2] times the fraction kept: [..., 4]."""
+    """Mean of (1, sin, cos, sin²) of φ uniform in [lo, hi] ∩ [-π/2, π/2] times the fraction kept: [..., 4].
+
+    With m = (a + b) / 2, h = (b - a) / 2 of the kept interval [a, b] and sinc h = sin h / h: E[sin] =
+    sin m sinc h, E[cos] = cos m sinc h, E[sin²] = (1 - cos 2m sinc h cos h) / 2 (sum-to-product forms of
+    the interval's integrals: four sines and cosines per element, exact as h -> 0)."""
     lo, hi = np.broadcast_arrays(np.asarray(lo, float), np.asarray(hi, float))
     a, b = np.clip(lo, -0.5 * np.pi, 0.5 * np.pi), np.clip(hi, -0.5 * np.pi, 0.5 * np.pi)
     d = hi - lo
     point = d < 1e-9
-    keep = np.where(point, (np.abs(lo) <= 0.5 * np.pi).astype(float), np.clip(b - a, 0.0, None) / np.where(point, 1.0, d))
-    span = np.where(b - a > 1e-12, b - a, 1.0)
-    small = (b - a) <= 1e-12
+    w = np.maximum(b - a, 0.0)
+    keep = np.where(point, (np.abs(lo) <= 0.5 * np.pi).astype(float), w / np.where(point, 1.0, d))
     m = 0.5 * (a + b)
-    s = np.where(small, np.sin(m), (np.cos(a) - np.cos(b)) / span)
-    c = np.where(small, np.cos(m), (np.sin(b) - np.sin(a)) / span)
-    s2 = np.where(small, np.sin(m) ** 2, 0.5 - (np.sin(2 * b) - np.sin(2 * a)) / (4 * span))
-    return np.stack([keep, keep * s, keep * c, keep * s2], -1)
+    h = 0.5 * w
+    sm, cm, ch = np.sin(m), np.cos(m), np.cos(h)
+    sinc = np.where(h > 1e-12, np.sin(h) / np.where(h > 1e-12, h, 1.0), 1.0)
+    ks = keep * sinc
+    return np.stack([keep, ks * sm, ks * cm, keep * 0.5 * (1.0 - (cm * cm - sm * sm) * sinc * ch)], -1)
 
 
 def _row_moments(mass, centroid, even, phi_node, phi_o):
@@ -275,8 +279,8 @@ def _row_moments(mass, centroid, even, phi_node, phi_o):
     lo, hi = aim_interval(M, centroid, even, phi_node, phi_o)
     im = interval_moments(lo, hi)                                                     # [..., M, 4]
     if mass.ndim == centroid.ndim:
-        return np.einsum("...m,...mq->...q", mass, im)
-    return np.einsum("...mc,...mq->...cq", mass, im)
+        return np.matmul(mass[..., None, :], im)[..., 0, :]
+    return np.matmul(np.swapaxes(mass, -1, -2), im)
 
 
 def _interval_of(vs_phi, cell_interval, phi_o):
@@ -432,7 +436,10 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     # exact slice moments per node, theta sample and channel (for the rank choice)
     e = -0.5 * np.pi + (np.arange(M) + 0.5) * (np.pi / M)
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
-    exact = np.einsum("smtc,qm->stcq", fm_b, basis_f)                                 # [S, T, C, 3]
+    exact = np.tensordot(fm_b, basis_f, axes=([1], [1]))                              # [S, T, C, 3]
+    # the model's moments: Y is constant over a group of bins, so sum mass x moment function per group first
+    gq = np.matmul(mass_b.reshape(S, Mg, group)[:, :, None, :],
+                   basis_f.reshape(3, Mg, group).transpose(1, 2, 0)[None])[:, :, 0, :]    # [S, Mg, 3]
     best = None
     Ys = [Y[..., c][live] for c in range(C)]                                              # [L, T] per channel
     Vts = [np.linalg.svd(sw[:, None] * Yc, full_matrices=False)[2] for Yc in Ys]       # one SVD per channel
@@ -444,8 +451,8 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
             Bk = Vts[c][:K]
             B[:, :, c] = Bk
             coef[live, :, c] = Yc @ Bk.T
-        Yk = np.maximum(np.einsum("smkc,ktc->smtc", coef, B), 0.0)
-        model = np.einsum("sm,smtc,qm->stcq", mass_b, np.repeat(Yk, group, axis=1), basis_f)
+        Yk = np.maximum(np.matmul(coef.transpose(3, 0, 1, 2), B.transpose(2, 0, 1)[:, None]), 0.0)   # [C, S, Mg, T]
+        model = np.matmul(Yk.transpose(0, 1, 3, 2), gq[None]).transpose(1, 2, 0, 3)                # [S, T, C, 3]
         a = np.abs(model[..., 0] - exact[..., 0]) / np.maximum(exact[..., 0], 1e-6)
         d = np.abs(model[..., 1:] - exact[..., 1:]).max(-1) / np.maximum(exact[..., 0], 1e-6)
         err = float((np.maximum(a, d).max(axis=(1, 2)) / _relax(phi)).max())
