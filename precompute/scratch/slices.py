@@ -46,12 +46,13 @@ Units: radians; ``mass`` is a fraction of the incident flux; angles φ in [-π/2
 from __future__ import annotations
 
 import sys
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..tables import cache as _cache
-from .beam import trace_exact
+from .beam import ExitRecords, path_fresnel, trace_exact
 from .profiles import Profile
 
 __all__ = ["ViewSlices", "view_slices", "exact_slice", "expected_moments", "exact_moments", "VERSION",
@@ -164,13 +165,70 @@ _MIN_SPLIT = 16
 _POOL: list = []
 
 
-def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
-    phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
-    verts = profile.periodic_vertices()
+#: exact traces are kept per profile as *geometry* (``beam.trace_exact(cos_path=True)``: exit angle, weight,
+#: bounces and the cosine of every bounce of each view direction's exits) and weighted by Fresnel afterwards
+#: (``beam.path_fresnel``, bit for bit the weights of a trace with that model): a direction traced once is
+#: never traced again for this profile, whatever the metal, the θo samples or the table quality (a metal edit,
+#: the full tables after the preview).  Bounded: at most ``GEOMETRY_BYTES`` over all profiles (least recently
+#: used profiles dropped first); 0 turns the store off.
+GEOMETRY_BYTES = 96 << 20
+_GEOMETRY: dict = {}          # (vertices hash, MAX_BOUNCES, MIN_ENERGY) -> {phi: per-direction records}
+_GEOMETRY_LOCK = threading.Lock()
+_FIELDS = ("pid", "bounces", "phi_o", "weight", "flux_ab", "bounds", "cos_path")
 
+
+def _geometry_key(verts) -> tuple:
+    import hashlib
+
+    return hashlib.sha1(np.ascontiguousarray(verts, np.float64).tobytes()).hexdigest(), MAX_BOUNCES, MIN_ENERGY
+
+
+def _store_bytes(store: dict) -> int:
+    return sum(v[8] for v in store.values())
+
+
+def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
+    """Per-direction records of ``phi`` [n]: (``_FIELDS`` arrays, lost, bytes[, Fresnel weights]) from the store;
+    the directions not stored yet are traced (``TRACE_WORKERS`` threads) with ``fresnel`` at ``cos_theta`` and
+    come back with the trace's own Fresnel weights as a 10th entry (the store keeps their geometry only).  When
+    every direction is new (and ``phi`` ascending), the trace's ``ExitRecords`` themselves are returned."""
+    key = _geometry_key(verts)
+    with _GEOMETRY_LOCK:
+        store = _GEOMETRY.pop(key, None)
+        store = {} if store is None else store
+        _GEOMETRY[key] = store                         # most recently used last
+        have = {p: store.get(p) for p in set(phi.tolist())}
+    new = np.array(sorted(p for p, r in have.items() if r is None), np.float64)
+    traced = None
+    if new.size:
+        traced = r = _trace_directions(verts, new, fresnel, cos_theta, True)
+        whole = new.size == phi.size and np.array_equal(new, phi)   # all new, in order: the trace is the answer
+        extra = () if (r.fresnel is None or whole) else (r.fresnel,)
+        # grouped by direction once (views into one sorted copy per field)
+        order = np.argsort(r.sample, kind="stable")
+        cuts = np.searchsorted(r.sample[order], np.arange(new.size + 1)).tolist()
+        cols = [getattr(r, f)[order] for f in _FIELDS] + [x[order] for x in extra]
+        row_bytes = sum(c[:1].nbytes for c in cols[:7])
+        for k in range(new.size):
+            a, b = cuts[k], cuts[k + 1]
+            have[float(new[k])] = (tuple(c[a:b] for c in cols[:7]) + (float(r.lost[k]), row_bytes * (b - a) + 200)
+                                   + tuple(c[a:b] for c in cols[7:]))
+        if GEOMETRY_BYTES > 0:
+            with _GEOMETRY_LOCK:
+                store.update((float(p), have[float(p)][:9]) for p in new)
+                total = sum(_store_bytes(v) for v in _GEOMETRY.values())
+                while total > GEOMETRY_BYTES and _GEOMETRY:
+                    oldest = next(iter(_GEOMETRY))
+                    total -= _store_bytes(_GEOMETRY.pop(oldest))
+        if whole:
+            return traced
+    return [have[p] for p in phi.tolist()]
+
+
+def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
     def run(p):
         return trace_exact(verts, p, fresnel if len(cos_theta) else None, tuple(cos_theta),
-                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY)
+                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cos_path)
 
     n = int(TRACE_WORKERS)
     if n <= 1 or phi.ndim != 1 or phi.size < _MIN_SPLIT:
@@ -183,6 +241,33 @@ def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     return _merge(list(_POOL[0][1].map(run, [phi[i] for i in idx])), idx, phi.size)
 
 
+def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
+    """Exit records of view directions ``phi`` (``beam.ExitRecords``; Fresnel weights at ``cos_theta`` when
+    ``fresnel`` is given), from the per-profile geometry store (``GEOMETRY_BYTES``): the records of each direction
+    are those of ``beam.trace_exact`` bit for bit, grouped by direction (in its order within a direction)."""
+    phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
+    verts = profile.periodic_vertices()
+    if GEOMETRY_BYTES <= 0 or phi.ndim != 1:
+        return _trace_directions(verts, phi, fresnel, cos_theta)
+    F = fresnel if (fresnel is not None and len(cos_theta)) else None
+    cs = np.asarray(cos_theta, np.float64) if F is not None else ()
+    recs = _geometry_records(verts, phi, F, cs)
+    if isinstance(recs, ExitRecords):      # every direction traced just now
+        return recs
+    sample = np.repeat(np.arange(phi.size), [r[0].size for r in recs]).astype(np.int64)
+    pid, nb, phi_o, w, ab, bd = (np.concatenate([r[q] for r in recs]) for q in range(6))
+    cp = _pad_cat([r[6] for r in recs])                                  # bounce cosines, zero-padded
+    fw = None
+    if F is not None:           # stored directions: weighted now (traced ones carry the trace's own weights)
+        old = [r for r in recs if len(r) == 9]
+        done = iter(np.split(path_fresnel(_pad_cat([r[6] for r in old]), np.concatenate([r[1] for r in old]),
+                                          np.concatenate([r[3] for r in old]), F, cs),
+                             np.cumsum([r[0].size for r in old])[:-1])) if old else iter(())
+        fw = np.concatenate([r[9] if len(r) > 9 else next(done) for r in recs])
+    return ExitRecords(sample=sample, pid=pid, bounces=nb, phi_o=phi_o, weight=w, fresnel=fw, flux_ab=ab,
+                       lost=np.array([r[7] for r in recs]), bounds=bd, cos_path=cp)
+
+
 def _merge(parts, idx, E):
     """One ``ExitRecords`` of traces of the directions ``phi[idx[k]]`` (``parts[k]``), samples renumbered."""
     cat = lambda k: np.concatenate([getattr(r, k) for r in parts])  # noqa: E731
@@ -192,7 +277,18 @@ def _merge(parts, idx, E):
     return type(parts[0])(
         sample=np.concatenate([i[r.sample] for r, i in zip(parts, idx)]), pid=cat("pid"), bounces=cat("bounces"),
         phi_o=cat("phi_o"), weight=cat("weight"), fresnel=None if parts[0].fresnel is None else cat("fresnel"),
-        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"))
+        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"),
+        cos_path=None if parts[0].cos_path is None else _pad_cat([r.cos_path for r in parts]))
+
+
+def _pad_cat(arrays) -> np.ndarray:
+    """Row-wise concatenation of 2D arrays of different widths, zero-padded to the widest."""
+    out = np.zeros((sum(a.shape[0] for a in arrays), max((a.shape[1] for a in arrays), default=0)))
+    at = 0
+    for a in arrays:
+        out[at:at + a.shape[0], :a.shape[1]] = a
+        at += a.shape[0]
+    return out
 
 
 def exact_slice(profile: Profile, phi_o, fresnel=None, theta_o=()):
