@@ -234,8 +234,24 @@ def _background() -> bool:
     return bool(bpy.app.background)
 
 
+def _trace_helper_on() -> None:
+    """Live table edits trace on both cores: ``precompute.scratch.slices``' helper process (started at the first
+    table edit, ended at ``unregister``; ``TRACE_HELPER`` False turns it off)."""
+    from ..precompute.scratch import slices
+
+    if TRACE_HELPER:
+        slices.TRACE_HELPER = slices.start_trace_helper()     # (running already: nothing to do)
+
+
+#: live edits split their exact traces with a helper process (``precompute.scratch.slices.TRACE_HELPER``).
+#: Off: on the shared 2-core machine (load 6-8, autogroup scheduling) it did not pay in wall time
+#: (``python -m bench live_update``: "trace helper" rows); on an idle machine it halves the trace
+TRACE_HELPER = False
+
+
 def request(material) -> None:
     """A table or structure setting of ``material`` changed: update it (now headless, debounced in the UI)."""
+    _trace_helper_on()
     if _batch is not None:
         _batch.append(material.name)
         return
@@ -551,3 +567,7 @@ def unregister() -> None:
     if _worker is not None:
         _worker.shutdown(wait=False, cancel_futures=True)
         _worker = None
+    from ..precompute.scratch import slices
+
+    slices.TRACE_HELPER = False
+    slices.stop_trace_helper()

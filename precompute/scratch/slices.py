@@ -45,6 +45,7 @@ Units: radians; ``mass`` is a fraction of the incident flux; angles φ in [-π/2
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 from dataclasses import dataclass, field
@@ -208,10 +209,11 @@ def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
         order = np.argsort(r.sample, kind="stable")
         cuts = np.searchsorted(r.sample[order], np.arange(new.size + 1)).tolist()
         cols = [getattr(r, f)[order] for f in _FIELDS] + [x[order] for x in extra]
-        row_bytes = sum(c[:1].nbytes for c in cols[:7])
+        row_bytes = sum(c[:1].nbytes for c in cols[:6])
         for k in range(new.size):
             a, b = cuts[k], cuts[k + 1]
-            have[float(new[k])] = (tuple(c[a:b] for c in cols[:7]) + (float(r.lost[k]), row_bytes * (b - a) + 200)
+            geo = tuple(c[a:b] for c in cols[:6]) + (cols[6][a:b, :int(cols[1][a:b].max(initial=0))].copy(),)
+            have[float(new[k])] = (geo + (float(r.lost[k]), row_bytes * (b - a) + geo[6].nbytes + 200)
                                    + tuple(c[a:b] for c in cols[7:]))
         if GEOMETRY_BYTES > 0:
             with _GEOMETRY_LOCK:
@@ -226,10 +228,14 @@ def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
 
 
 def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
-    def run(p):
-        return trace_exact(verts, p, fresnel if len(cos_theta) else None, tuple(cos_theta),
-                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cos_path)
+    def run(p, F=fresnel, cs=cos_theta, cp=cos_path):
+        return trace_exact(verts, p, F if len(cs) else None, tuple(cs),
+                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cp)
 
+    if TRACE_HELPER and phi.ndim == 1 and phi.size >= _HELPER_MIN:
+        got = _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run)
+        if got is not None:
+            return got
     n = int(TRACE_WORKERS)
     if n <= 1 or phi.ndim != 1 or phi.size < _MIN_SPLIT:
         return run(phi)
@@ -239,6 +245,177 @@ def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
         _POOL[:] = [(n, concurrent.futures.ThreadPoolExecutor(n, thread_name_prefix="scratch_trace"))]
     idx = [np.arange(k, phi.size, n) for k in range(n)]     # interleaved: grazing and normal views in each part
     return _merge(list(_POOL[0][1].map(run, [phi[i] for i in idx])), idx, phi.size)
+
+
+# ----------------------------------------------------------------------------- a helper process (2 cores)
+#: Trace half of each batch of new view directions in a helper process (a plain Python running ``beam.py``
+#: alone, ``start_trace_helper``): the directions are independent and the tracer is many small numpy passes
+#: that hold the GIL, so threads do not scale (``TRACE_WORKERS``) but two processes do.  The helper traces
+#: geometry (``cos_path``); its directions' Fresnel weights are computed here (``beam.path_fresnel``, bit for
+#: bit the traced ones).  Off by default (a script or a render farm gets no extra process); live edits turn it
+#: on (``scratch_addon.live``).  Any failure of the helper falls back to tracing here.
+TRACE_HELPER = False
+#: start the helper in its own session (POSIX): with the kernel's autogroup scheduling every process of a
+#: session shares one CPU share, so under load a helper in Blender's session only takes CPU from Blender
+HELPER_OWN_SESSION = True
+_HELPER_MIN = 24              # fewer new directions: traced here (the round trip costs ~1 ms)
+_HELPER: dict = {"proc": None}
+_HELPER_LOCK = threading.Lock()
+_HELPER_FIELDS = ("sample", "pid", "bounces", "phi_o", "weight", "flux_ab", "lost", "bounds", "cos_path")
+_HELPER_CODE = r"""
+import importlib.util, pickle, sys
+import numpy as np
+spec = importlib.util.spec_from_file_location("_scratch_beam_helper", sys.argv[1])
+beam = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = beam
+spec.loader.exec_module(beam)
+inp, out = sys.stdin.buffer, sys.stdout.buffer
+pickle.dump("ready", out)
+out.flush()
+while True:
+    try:
+        verts, phi, kw, path = pickle.load(inp)
+    except EOFError:
+        break
+    try:
+        r = beam.trace_exact(verts, phi, None, (), cos_path=True, **kw)
+        res = {f: getattr(r, f) for f in sys.argv[2].split(",")}
+        cp = res.pop("cos_path")
+        res["cos_flat"] = cp[np.arange(cp.shape[1])[None, :] < r.bounces[:, None]]   # no padding
+        res["cos_width"] = cp.shape[1]
+        with open(path, "wb") as f:      # a file, not the pipe: no chunked hand-over between busy processes
+            pickle.dump(res, f, protocol=pickle.HIGHEST_PROTOCOL)
+        res = "done"
+    except Exception as exc:
+        res = repr(exc)
+    pickle.dump(res, out)
+    out.flush()
+"""
+
+
+def _python() -> str | None:
+    """The Python interpreter to run the helper with (Blender's bundled one; None if ``sys.executable`` is not a
+    Python, e.g. Blender itself in old versions)."""
+    import os
+
+    exe = sys.executable or ""
+    return exe if os.path.basename(exe).lower().startswith("python") else None
+
+
+def start_trace_helper() -> bool:
+    """Start the helper process now (it imports numpy in the background, ~0.2 s); True if it runs."""
+    import pickle  # noqa: F401
+    import subprocess
+
+    with _HELPER_LOCK:
+        proc = _HELPER["proc"]
+        if proc is not None and proc.poll() is None:
+            return True
+        exe = _python()
+        if exe is None:
+            return False
+        from . import beam as _beam
+
+        try:
+            _HELPER["proc"] = subprocess.Popen([exe, "-c", _HELPER_CODE, _beam.__file__, ",".join(_HELPER_FIELDS)],
+                                               stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                               stderr=subprocess.DEVNULL, start_new_session=HELPER_OWN_SESSION)
+            _HELPER["ready"] = False
+        except OSError:
+            _HELPER["proc"] = None
+            return False
+    return True
+
+
+def stop_trace_helper() -> None:
+    """End the helper process (if any)."""
+    with _HELPER_LOCK:
+        proc, _HELPER["proc"] = _HELPER["proc"], None
+    if proc is not None:
+        try:
+            proc.stdin.close()
+            proc.wait(timeout=2)
+        except Exception:  # noqa: BLE001 - it is ours: make sure it ends
+            proc.kill()
+    path = _HELPER.pop("file", None)
+    if path is not None:
+        import os
+
+        with contextlib.suppress(OSError):
+            os.remove(path)
+
+
+#: seconds the helper may take beyond our own half before it is given up (and ended)
+HELPER_TIMEOUT_S = 60.0
+
+
+def _wait_readable(stream, timeout: float) -> bool:
+    """True once ``stream`` has data (POSIX ``select``; elsewhere True: a blocking read)."""
+    try:
+        import select
+
+        return bool(select.select([stream], [], [], timeout)[0])
+    except (ImportError, OSError, ValueError):
+        return True
+
+
+def _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run):
+    """Half of ``phi`` (interleaved) traced by the helper, the other half here at the same time; None when the
+    helper is busy (another thread), not running or failed (the caller traces everything here)."""
+    import pickle
+
+    if not _HELPER_LOCK.acquire(blocking=False):
+        return None
+    try:
+        proc = _HELPER["proc"]
+        if proc is None or proc.poll() is not None:
+            _HELPER["proc"] = None          # ended: forgotten (``start_trace_helper`` starts a new one)
+            return None
+        idx = [np.arange(0, phi.size, 2), np.arange(1, phi.size, 2)]
+        path = _HELPER.get("file")
+        if path is None:
+            import os
+            import tempfile
+
+            fd, path = tempfile.mkstemp(prefix="scratch_trace_", suffix=".pkl")
+            os.close(fd)
+            _HELPER["file"] = path
+        try:
+            pickle.dump((np.asarray(verts), phi[idx[1]], {"max_bounces": MAX_BOUNCES, "min_energy": MIN_ENERGY}, path),
+                        proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            proc.stdin.flush()
+        except (OSError, ValueError):
+            _HELPER["proc"] = None
+            return None
+        mine = run(phi[idx[0]], cp=True)
+        try:
+            if not _wait_readable(proc.stdout, HELPER_TIMEOUT_S):
+                raise TimeoutError("trace helper")
+            if not _HELPER.get("ready"):
+                if pickle.load(proc.stdout) != "ready":
+                    raise ValueError("helper")
+                _HELPER["ready"] = True
+            if pickle.load(proc.stdout) != "done":
+                raise ValueError("helper")
+            with open(path, "rb") as f:
+                res = pickle.load(f)
+        except Exception:  # noqa: BLE001 - a dead or confused helper: stop it, trace here
+            _HELPER["proc"] = None
+            proc.kill()
+            return None
+        flat, width = res.pop("cos_flat"), int(res.pop("cos_width"))
+        cp = np.zeros((res["bounces"].size, width))
+        cp[np.arange(width)[None, :] < res["bounces"][:, None]] = flat
+        theirs = ExitRecords(fresnel=None, cos_path=cp, **res)
+        if mine.fresnel is not None:
+            theirs.fresnel = path_fresnel(theirs.cos_path, theirs.bounces, theirs.weight, fresnel,
+                                          np.asarray(cos_theta, np.float64))
+        out = _merge([mine, theirs], idx, phi.size)
+        if not cos_path:
+            out.cos_path = None
+        return out
+    finally:
+        _HELPER_LOCK.release()
 
 
 def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):

@@ -98,3 +98,51 @@ def test_geometry_store_is_bounded(monkeypatch):
         assert total <= slices.GEOMETRY_BYTES
     assert 1 <= len(slices._GEOMETRY) < 4                 # older profiles dropped first
     assert slices._geometry_key(profiles.quartic(0.1).periodic_vertices()) in slices._GEOMETRY
+
+
+def test_tabulated_lookup_is_the_clipped_linear_interpolation_bit_for_bit():
+    """``fresnel.Tabulated.__call__`` (fmin/fmax clip, np.take gathers) equals the plain formula
+    value[i] + t slope[i] of x = clip(nan_to_num(c), 0, 1) N, NaN and out-of-range cosines included."""
+    tab = _model("iron")
+    rng = np.random.default_rng(3)
+    c = np.concatenate([rng.random(5000), [0.0, -0.0, 1.0, 1.5, -2.0, np.nan, 1e-300, 1.0 - 1e-16]]).reshape(-1, 4)
+    n = tab.slope.shape[0]
+    x = np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * n
+    i = np.minimum(x.astype(np.intp), n - 1)
+    ref = tab.value[i] + (x - i)[..., None] * tab.slope[i]
+    np.testing.assert_array_equal(tab(c), ref)
+    assert tab(c).shape == c.shape + (3,)
+
+
+def test_trace_helper_process_gives_the_same_tables(monkeypatch):
+    """Half of each batch traced by the helper process (``slices.TRACE_HELPER``): the table lobes equal those
+    traced in one process, bit for bit; a dead helper is noticed and the trace falls back to this process."""
+    if slices._python() is None:
+        pytest.skip("no Python interpreter to run the helper with")
+    prof, F = profiles.quartic(0.085), _model("copper")
+    monkeypatch.setattr(slices, "_GEOMETRY", {})
+    monkeypatch.setattr(slices, "TRACE_HELPER", True)
+    assert slices.start_trace_helper()
+    try:
+        calls = []
+        real = slices._helper_trace
+        monkeypatch.setattr(slices, "_helper_trace", lambda *a: calls.append(a[1].size) or real(*a))
+        split = lobes.table_lobes(prof, F, 64, 16, use_cache=False)
+        assert calls and slices._HELPER["proc"] is not None          # the helper was used
+        monkeypatch.setattr(slices, "_GEOMETRY", {})
+        monkeypatch.setattr(slices, "TRACE_HELPER", False)
+        one = lobes.table_lobes(prof, F, 64, 16, use_cache=False)
+        for k, v in one.items():
+            if isinstance(v, np.ndarray):
+                np.testing.assert_array_equal(split[k], v, err_msg=k)
+        # the helper dies: the next trace falls back (same records) and forgets it
+        slices._HELPER["proc"].kill()
+        slices._HELPER["proc"].wait()
+        monkeypatch.setattr(slices, "TRACE_HELPER", True)
+        phi = np.linspace(-1.4, 1.4, 40)
+        got = slices._trace_directions(prof.periodic_vertices(), phi, F, np.cos([0.0, 0.7]), True)
+        ref = beam.trace_exact(prof.periodic_vertices(), phi, F, tuple(np.cos([0.0, 0.7])), cos_path=True)
+        np.testing.assert_array_equal(got.fresnel, ref.fresnel)
+        assert slices._HELPER["proc"] is None
+    finally:
+        slices.stop_trace_helper()
