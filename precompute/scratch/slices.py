@@ -424,7 +424,7 @@ def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     are those of ``beam.trace_exact`` bit for bit, grouped by direction (in its order within a direction)."""
     phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
     verts = profile.periodic_vertices()
-    if GEOMETRY_BYTES <= 0 or phi.ndim != 1:
+    if GEOMETRY_BYTES <= 0 or phi.ndim != 1 or phi.size == 0 or not np.all(np.isfinite(phi)):
         return _trace_directions(verts, phi, fresnel, cos_theta)
     F = fresnel if (fresnel is not None and len(cos_theta)) else None
     cs = np.asarray(cos_theta, np.float64) if F is not None else ()
