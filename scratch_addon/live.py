@@ -19,7 +19,10 @@ table lobes quick *preview* tables (``precompute.scratch.lobes.table_lobes``, qu
 quarter of the cost, moments within 3 %) and the full tables are submitted together (``WORKERS``
 threads: with one, the full tables start as soon as the preview is computed, not after it is applied);
 the preview is applied as soon as it is ready, then the full tables replace it (the material carries
-``scratch_material.PREVIEW_KEY`` in between).  Headless
+``scratch_material.PREVIEW_KEY`` in between).  The exact traces behind the tables are kept per profile
+as geometry (``precompute.scratch.slices.GEOMETRY_BYTES``): a metal edit, or the full tables after their
+preview, re-weights directions already traced instead of tracing them again; ``TRACE_HELPER`` splits new
+traces with a helper process (off: it did not pay on the loaded 2-core test machine).  Headless
 (``blender -b``, tests) ``bpy.app.timers`` never fire, so edits apply synchronously, except inside
 ``batch()`` which applies once at its end.  ``flush()`` applies whatever is pending.
 
