@@ -317,6 +317,11 @@ def start_trace_helper() -> bool:
         from . import beam as _beam
 
         try:
+            if not _HELPER.get("atexit"):         # the helper ends with its stdin; its temp file goes here
+                import atexit
+
+                atexit.register(stop_trace_helper)
+                _HELPER["atexit"] = True
             _HELPER["proc"] = subprocess.Popen([exe, "-c", _HELPER_CODE, _beam.__file__, ",".join(_HELPER_FIELDS)],
                                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                                stderr=subprocess.DEVNULL, start_new_session=HELPER_OWN_SESSION)
