@@ -17,8 +17,10 @@ same code the UI runs after its debounce) and times until the material is update
                  result is applied (measured by driving ``live._tick`` with timers simulated; main-thread CPU
                  by ``time.thread_time``); change -> preview shown, change -> full tables shown; with 1 worker
                  (``live.WORKERS``, the default: preview, then full) and 2 (side by side), interleaved
-  tables alone   ``table_lobes`` without the cache: as shipped / the θo basis tracing every node again (before
-                 this round) / each trace split over 2 threads (``slices.TRACE_WORKERS``), interleaved
+  tables alone   ``table_lobes`` without the cache: as shipped / the geometry store off (``slices.GEOMETRY_BYTES
+                 = 0``: Fresnel inside every trace, the θo basis tracing the refined nodes again) / the traces
+                 split with a helper process (``slices.TRACE_HELPER``), interleaved
+  helper         the in-place profile miss with the traces split with the helper process, interleaved
   in place, as before   the same miss with the shader compiled on the main thread after the tables
                  (``osl_compile.precompile`` off), interleaved with the in-place rows
 
@@ -50,15 +52,18 @@ def _setup():
 
 
 _CPU: list = []
+_MAIN: list = []
 _DEFAULT_RES: list = []
 
 
 def _timed(fn) -> float:
     """Wall seconds of ``fn()``; its CPU seconds (all threads) go to ``_CPU`` (the machine is shared: CPU time
-    is what the edit would take on an idle machine, within the threads' parallelism)."""
-    c0, t0 = time.process_time(), time.perf_counter()
+    is what the edit would take on an idle machine, within the threads' parallelism) and the calling thread's
+    to ``_MAIN`` (the critical path when the other threads, the OSL compile, run beside it on the 2nd core)."""
+    c0, m0, t0 = time.process_time(), time.thread_time(), time.perf_counter()
     fn()
     _CPU.append(time.process_time() - c0)
+    _MAIN.append(time.thread_time() - m0)
     return time.perf_counter() - t0
 
 
@@ -138,16 +143,30 @@ def _workers(live, n: int):
         live.WORKERS = saved
 
 
+@contextlib.contextmanager
+def _helper(on: bool):
+    """The exact traces split with the helper process (``slices.TRACE_HELPER``; started here) or not."""
+    from scratch_materials.precompute.scratch import slices
+
+    saved = slices.TRACE_HELPER
+    slices.TRACE_HELPER = bool(on) and slices.start_trace_helper()
+    try:
+        yield
+    finally:
+        slices.TRACE_HELPER = saved
+
+
 def _table_rows(spec_of, repeats: int) -> list:
     """Tables alone (``precompute.scratch.lobes.table_lobes``, no cache) of a profile miss at the material's
-    resolution, interleaved: as shipped (start nodes' traces reused by the θo basis, ``slices.TRACE_WORKERS``
-    as set), the θo basis tracing every node again (as before this round), and each trace split over the two
-    cores (``TRACE_WORKERS = 2``); with the traces' share (``slices._trace``, wall and CPU)."""
+    resolution, interleaved: as shipped (geometry store on, one process), the geometry store off
+    (``slices.GEOMETRY_BYTES = 0``: Fresnel inside every trace, the θo basis traces the refined nodes again, as
+    before this round), and the traces split with the helper process (``slices.TRACE_HELPER``); with the
+    traces' share (``slices._trace``, wall and CPU of this process)."""
     import dataclasses
 
     from scratch_materials.precompute.scratch import material as pm, profiles, slices
 
-    real_trace, real_workers, real_nodes = slices._trace, slices.TRACE_WORKERS, slices._phi_nodes
+    real_trace, real_bytes = slices._trace, slices.GEOMETRY_BYTES
     traced = []
 
     def timed_trace(*a, **k):
@@ -158,13 +177,10 @@ def _table_rows(spec_of, repeats: int) -> list:
             traced[-1][0] += time.perf_counter() - t0
             traced[-1][1] += time.process_time() - c0
 
-    def no_reuse(*a):
-        return real_nodes(*a[:7])            # no records: the θo basis traces every node
-
-    variants = {"shipped": (real_workers, real_nodes), "retrace": (real_workers, no_reuse), "split": (2, real_nodes)}
-    labels = {"shipped": f"as shipped (start traces reused, {real_workers} trace thread(s))",
-              "retrace": "θo basis traces every node again (before)",
-              "split": "start traces reused, each trace split over 2 threads"}
+    variants = {"shipped": (real_bytes, False), "no store": (0, False), "helper": (real_bytes, True)}
+    labels = {"shipped": "as shipped (geometry store, one process)",
+              "no store": "geometry store off (Fresnel inside every trace; before this round)",
+              "helper": "traces split with the helper process (slices.TRACE_HELPER)"}
     spec = spec_of()
     out = {k: [] for k in variants}
     slices._trace = timed_trace
@@ -173,13 +189,14 @@ def _table_rows(spec_of, repeats: int) -> list:
             order = list(variants) if i % 2 == 0 else list(variants)[::-1]
             for j, key in enumerate(order):
                 p = dataclasses.replace(spec, profile=profiles.quartic(0.0407 + 0.0071 * i + 0.0002 * j))
-                slices.TRACE_WORKERS, slices._phi_nodes = variants[key]
+                slices.GEOMETRY_BYTES = variants[key][0]
                 traced.append([0.0, 0.0])
-                t = _timed(lambda p=p: pm.lobes.table_lobes(p.profile, pm.trace_fresnel(p), p.resolution, p.slices,
-                                                            use_cache=False))
+                with _helper(variants[key][1]):
+                    t = _timed(lambda p=p: pm.lobes.table_lobes(p.profile, pm.trace_fresnel(p), p.resolution,
+                                                                p.slices, use_cache=False))
                 out[key].append((t, _CPU[-1], traced[-1][0], traced[-1][1]))
     finally:
-        slices._trace, slices.TRACE_WORKERS, slices._phi_nodes = real_trace, real_workers, real_nodes
+        slices._trace, slices.GEOMETRY_BYTES = real_trace, real_bytes
     M = spec.resolution
     med = lambda n, k: statistics.median([r[k] for r in out[n]])  # noqa: E731
     rows = []
@@ -210,11 +227,16 @@ def timing(repeats: int) -> list:
                                 ("socket: tint", "tint", [(1, 0.8, 0.6), (1, 1, 1)])):
         ts = [_timed(lambda v=v: setattr(s, prop, v)) for _ in range(repeats) for v in values]
         rows.append(_row(label, "-", ts))
-    misses, forced, c_miss, c_forced, old_miss, c_old = [], [], [], [], [], []
-    for i in range(repeats):          # A/B/C interleaved: in place, in place as before (main-thread compile), forced rebuild
-        v = 0.06 + 0.013 * (i + 1)                       # never seen: cache miss
+    misses, forced, c_miss, c_forced, old_miss, c_old, h_miss, c_h, m_miss = [], [], [], [], [], [], [], [], []
+    for i in range(repeats):          # A/B/C/D interleaved: in place, with the trace helper, in place as before
+        v = 0.06 + 0.013 * (i + 1)    # (main-thread compile), forced rebuild; never seen: cache miss
         misses.append(_timed(lambda v=v: setattr(s, "profile_value", v)))
         c_miss.append(_CPU[-1])
+        m_miss.append(_MAIN[-1])
+        assert live.last_update()["kind"] == "tables", live.last_update()
+        with _helper(True):
+            h_miss.append(_timed(lambda v=v: setattr(s, "profile_value", v + 0.0017)))
+            c_h.append(_CPU[-1])
         assert live.last_update()["kind"] == "tables", live.last_update()
         with _before():
             old_miss.append(_timed(lambda v=v: setattr(s, "profile_value", v + 0.0031)))
@@ -225,6 +247,10 @@ def timing(repeats: int) -> list:
         forced.append(_timed(lambda: live.sync(mat, force=True)))
         c_forced.append(_CPU[-1])
     rows.append(_row("table: profile value (in place)", "miss", misses, c_miss))
+    rows.append(("table: profile value (in place), CPU of the main thread alone (idle-machine wall: the shader "
+                 "compiles beside it)", "miss", "-", statistics.median(m_miss), len(m_miss)))
+    rows.append(_row("table: profile value (in place), traces split with the helper process (CPU: this process)",
+                     "miss", h_miss, c_h))
     rows.append(_row("table: profile value (in place), as before: shader compiled on the main thread, after the "
                      "tables", "miss", old_miss, c_old))
     rows.extend(_table_rows(spec_of=lambda: live._spec(mat), repeats=repeats))
@@ -232,11 +258,14 @@ def timing(repeats: int) -> list:
     hits = [_timed(lambda v=v: setattr(s, "profile_value", v)) for v in [0.06 + 0.013 * (i + 1)
                                                                          for i in range(repeats)]]
     rows.append(_row("table: profile value", "hit", hits))
-    metal_miss = []
+    metal_miss, m_metal = [], []
     for m in ("gold", "copper", "silver", "aluminium"):
         metal_miss.append(_timed(lambda m=m: setattr(s, "metal", m)))
+        m_metal.append(_MAIN[-1])
         assert live.last_update()["kind"] in ("tables", "rebuild")
     rows.append(_row("table: metal (in place; a larger θo rank rebuilds)", "miss", metal_miss))
+    rows.append(("table: metal (in place), CPU of the main thread alone", "miss", "-", statistics.median(m_metal),
+                 len(m_metal)))
     spec = live._spec(mat)
     import dataclasses
 

@@ -19,7 +19,10 @@ table lobes quick *preview* tables (``precompute.scratch.lobes.table_lobes``, qu
 quarter of the cost, moments within 3 %) and the full tables are submitted together (``WORKERS``
 threads: with one, the full tables start as soon as the preview is computed, not after it is applied);
 the preview is applied as soon as it is ready, then the full tables replace it (the material carries
-``scratch_material.PREVIEW_KEY`` in between).  Headless
+``scratch_material.PREVIEW_KEY`` in between).  The exact traces behind the tables are kept per profile
+as geometry (``precompute.scratch.slices.GEOMETRY_BYTES``): a metal edit, or the full tables after their
+preview, re-weights directions already traced instead of tracing them again; ``TRACE_HELPER`` splits new
+traces with a helper process (off: it did not pay on the loaded 2-core test machine).  Headless
 (``blender -b``, tests) ``bpy.app.timers`` never fire, so edits apply synchronously, except inside
 ``batch()`` which applies once at its end.  ``flush()`` applies whatever is pending.
 
@@ -234,8 +237,24 @@ def _background() -> bool:
     return bool(bpy.app.background)
 
 
+def _trace_helper_on() -> None:
+    """Live table edits trace on both cores: ``precompute.scratch.slices``' helper process (started at the first
+    table edit, ended at ``unregister``; ``TRACE_HELPER`` False turns it off)."""
+    from ..precompute.scratch import slices
+
+    if TRACE_HELPER:
+        slices.TRACE_HELPER = slices.start_trace_helper()     # (running already: nothing to do)
+
+
+#: live edits split their exact traces with a helper process (``precompute.scratch.slices.TRACE_HELPER``).
+#: Off: on the shared 2-core machine (load 6-8, autogroup scheduling) it did not pay in wall time
+#: (``python -m bench live_update``: "trace helper" rows); on an idle machine it halves the trace
+TRACE_HELPER = False
+
+
 def request(material) -> None:
     """A table or structure setting of ``material`` changed: update it (now headless, debounced in the UI)."""
+    _trace_helper_on()
     if _batch is not None:
         _batch.append(material.name)
         return
@@ -551,3 +570,7 @@ def unregister() -> None:
     if _worker is not None:
         _worker.shutdown(wait=False, cancel_futures=True)
         _worker = None
+    from ..precompute.scratch import slices
+
+    slices.TRACE_HELPER = False
+    slices.stop_trace_helper()

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ExitRecords", "trace_exact"]
+__all__ = ["ExitRecords", "trace_exact", "path_fresnel"]
 
 _HASH_MUL = np.int64(1_000_003)
 _MIN_WIDTH = 1e-12  # relative to the incident beam width
@@ -75,6 +75,9 @@ class ExitRecords:
     ``(c1, c2)`` of the lower and upper bounding (unfolded) points: the incident ray through the
     point has level ``c1 cos(phi_i) + c2 sin(phi_i)`` (= ``x cos - h sin``), so the beam width is
     ``upper - lower`` (= ``flux_ab`` at the sample) for as long as the same points bound it.
+    ``cos_path``: ``(n, B)`` the 2D cosine ``|d . n|`` of each bounce of the beam's path (0 past its
+    ``bounces``), recorded with ``trace_exact(cos_path=True)``: the Fresnel weights of any model and θo follow
+    from them (``path_fresnel``) without tracing again.
     """
 
     sample: np.ndarray
@@ -86,6 +89,7 @@ class ExitRecords:
     flux_ab: np.ndarray
     lost: np.ndarray
     bounds: np.ndarray | None = None
+    cos_path: np.ndarray | None = None
 
 
 class _Hierarchy:
@@ -194,7 +198,8 @@ def _take(bm: dict, b) -> dict:
 
 
 def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(), *,
-                max_bounces: int = 64, min_energy: float = 1e-7, scan_tail: bool = False) -> ExitRecords:
+                max_bounces: int = 64, min_energy: float = 1e-7, scan_tail: bool = False,
+                cos_path: bool = False) -> ExitRecords:
     """Trace parallel beams incident at angles ``phi_i`` (radians, |phi_i| < pi/2) into the periodic profile.
 
     ``verts``: one period of the polyline, ``(P + 1, 2)`` with ``V_P = V_0 + (1, 0)``, max height 0.
@@ -202,6 +207,8 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     slices to track (the 3D incidence cosine of §4.2 is ``cos(theta_o) |d . n|``).
     ``scan_tail``: the hierarchy's last few searching beams finish by one scan (``_finish_by_scan``): the same
     records, in another order (sums over them, e.g. ``lost``, may differ in the last bit).
+    ``cos_path``: also record every exit's bounce cosines (``ExitRecords.cos_path``; ``path_fresnel`` gives the
+    ``fresnel`` weights from them, bit for bit those of a trace with that model).
     """
     g = _Geometry(np.asarray(verts, np.float64), scan_tail)
     P = g.P
@@ -211,7 +218,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     C = fresnel.channels if (fresnel is not None and S) else 0
     cos_scales = np.asarray(cos_scales, np.float64)
 
-    out = {k: [] for k in ("sample", "pid", "nb", "phi", "w", "f", "ab", "bd")}
+    out = {k: [] for k in ("sample", "pid", "nb", "phi", "w", "f", "ab", "bd", "cp")}
     lost = np.zeros(E)
     inc = np.cos(phi_i)  # incident beam width per period (period = 1)
 
@@ -245,6 +252,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         pid=np.zeros(n0, np.int64),
         f=np.ones((n0, S, C)) if C else None,
         R=R, tr=U[1], P0=_apply(U, g.X[oo, v_lo], g.H[oo, v_lo]), P1=_apply(U, g.X[oo, v_hi], g.H[oo, v_hi]),
+        cp=np.zeros((n0, 0)) if cos_path else None,
     )
     bounce = 0
     while beams["sample"].size:
@@ -270,7 +278,41 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         flux_ab=np.concatenate(out["ab"]) if out["ab"] else np.zeros((0, 2)),
         lost=np.maximum(lost, 0.0) / inc,
         bounds=np.concatenate(out["bd"]) if out["bd"] else np.zeros((0, 2, 2)),
+        cos_path=None if not cos_path else _pad_paths(out["cp"], bounce),
     )
+
+
+def _pad_paths(groups: list, bounces: int) -> np.ndarray:
+    """One (n, B) array of the per-bounce cosine groups ``groups`` ((n_b, b) each), zero-padded to B columns."""
+    B = max([c.shape[1] for c in groups], default=0)
+    out = np.zeros((sum(c.shape[0] for c in groups), B))
+    at = 0
+    for c in groups:
+        out[at:at + c.shape[0], :c.shape[1]] = c
+        at += c.shape[0]
+    return out
+
+
+def path_fresnel(cos_path, bounces, weight, fresnel, cos_scales) -> np.ndarray:
+    """Fresnel weights ``(n, S, C)`` of exits from their bounce cosines (``ExitRecords.cos_path``): the product
+    over bounces of ``fresnel(cos(theta_o) |d . n|)`` (§4.2) times ``weight``, for the S ``cos_scales`` =
+    cos(theta_o).  The same products, in the same order, as ``trace_exact(fresnel=..., cos_scales=...)``: bit for
+    bit its ``fresnel`` records (the geometry is traced once, any metal re-weights it)."""
+    cos_path = np.asarray(cos_path, np.float64)
+    bounces = np.asarray(bounces)
+    weight = np.asarray(weight, np.float64)
+    cs = np.asarray(cos_scales, np.float64)
+    n, S, C = bounces.size, cs.size, int(fresnel.channels)
+    # longest paths first: the exits still bouncing at bounce k are a prefix (in-place products on views)
+    order = np.argsort(-bounces, kind="stable")
+    nb = bounces[order]
+    f = np.ones((n, S, C))
+    for k in range(int(nb[0]) if n else 0):
+        m = int(np.searchsorted(-nb, -k, side="left"))      # exits with more than k bounces
+        f[:m] *= fresnel(cos_path[order[:m], k][:, None] * cs[None, :])
+    out = np.empty((n, S, C))
+    out[order] = f * weight[order][:, None, None]
+    return out
 
 
 def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
@@ -296,10 +338,13 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     dh = bm["dh"] - 2.0 * dn * n[:, 1]
     inv = 1.0 / np.hypot(dx, dh)
     dx, dh = dx * inv, dh * inv
-    f = bm["f"]
-    if f is not None:
+    f, cp = bm["f"], bm.get("cp")
+    if f is not None or cp is not None:
         cos2d = np.clip(-dn, 0.0, 1.0)
+    if f is not None:
         f = f * fresnel(cos2d[:, None] * cos_scales[None, :])
+    if cp is not None:
+        cp = np.concatenate([cp, cos2d[:, None]], 1)
     j_orig = np.where(o == 0, j, P - 1 - j).astype(np.int64)
     code = (P + 1) * k.astype(np.int64)
     pid = bm["pid"] * _HASH_MUL + (j_orig + 1 + code)
@@ -314,7 +359,7 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     l0, l1 = _levels(g, o, j, t0, dx, dh), _levels(g, o, j, t1, dx, dh)
     top0 = (l0 >= l1)[:, None]
     return dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
-                pid=pid, f=f, R=R, tr=tr,
+                pid=pid, f=f, R=R, tr=tr, cp=cp,
                 Phi=np.where(top0, bm["P0"], bm["P1"]), Plo=np.where(top0, bm["P1"], bm["P0"]))
 
 
@@ -620,3 +665,5 @@ def _record(out: dict, bm: dict, esc: dict, bounce: int, inc: np.ndarray, phi_i:
     out["w"].append(w)
     if bm["f"] is not None:
         out["f"].append(bm["f"][b] * w[:, None, None])
+    if bm.get("cp") is not None:
+        out["cp"].append(bm["cp"][b])

@@ -208,10 +208,11 @@ class Tabulated(Fresnel):
     def __call__(self, cos_theta) -> np.ndarray:
         c = np.asarray(cos_theta, dtype=np.float64)
         n = self.slope.shape[0]
-        x = np.clip(np.nan_to_num(c, nan=0.0), 0.0, 1.0) * n
+        x = np.fmin(np.fmax(c, 0.0), 1.0) * n          # clipped to [0, 1]; NaN -> 0 (fmax drops NaN)
         i = np.minimum(x.astype(np.intp), n - 1)
         t = (x - i)[..., None]
-        return self.value[i] + t * self.slope[i]
+        # (np.take: the row gathers of value[i], slope[i] without fancy indexing's overhead; the same numbers)
+        return np.take(self.value, i, axis=0) + t * np.take(self.slope, i, axis=0)
 
     def cache_key(self) -> dict:
         return {"model": "tabulated", "source": self.source.cache_key(), "cells": int(self.slope.shape[0])}

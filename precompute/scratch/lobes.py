@@ -249,7 +249,7 @@ def _table_lobes(vs) -> dict:
     ax = 1e-4
     ay = lobe_table.default_width(M)
     phi_eval = np.clip(vs.phi, -0.5 * np.pi + 1e-4, 0.5 * np.pi - 1e-4)
-    a = lobe_table.box_albedo(phi_eval, M, vs.centroid, ay, ax)
+    a = lobe_table.box_albedo(phi_eval, M, vs.centroid, ay, ax, where=vs.mass > 0)   # empty bins: w = 0 anyway
     ok = a > 1e-3
     w = np.where(ok, vs.mass / np.where(ok, a, 1.0), 0.0)
     cdf, total = lobe_table.proposal(w)

@@ -45,13 +45,15 @@ Units: radians; ``mass`` is a fraction of the incident flux; angles φ in [-π/2
 """
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..tables import cache as _cache
-from .beam import trace_exact
+from .beam import ExitRecords, path_fresnel, trace_exact
 from .profiles import Profile
 
 __all__ = ["ViewSlices", "view_slices", "exact_slice", "expected_moments", "exact_moments", "VERSION",
@@ -164,14 +166,76 @@ _MIN_SPLIT = 16
 _POOL: list = []
 
 
-def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
-    phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
-    verts = profile.periodic_vertices()
+#: exact traces are kept per profile as *geometry* (``beam.trace_exact(cos_path=True)``: exit angle, weight,
+#: bounces and the cosine of every bounce of each view direction's exits) and weighted by Fresnel afterwards
+#: (``beam.path_fresnel``, bit for bit the weights of a trace with that model): a direction traced once is
+#: never traced again for this profile, whatever the metal, the θo samples or the table quality (a metal edit,
+#: the full tables after the preview).  Bounded: at most ``GEOMETRY_BYTES`` over all profiles (least recently
+#: used profiles dropped first); 0 turns the store off.
+GEOMETRY_BYTES = 96 << 20
+_GEOMETRY: dict = {}          # (vertices hash, MAX_BOUNCES, MIN_ENERGY) -> {phi: per-direction records}
+_GEOMETRY_LOCK = threading.Lock()
+_FIELDS = ("pid", "bounces", "phi_o", "weight", "flux_ab", "bounds", "cos_path")
 
-    def run(p):
-        return trace_exact(verts, p, fresnel if len(cos_theta) else None, tuple(cos_theta),
-                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY)
 
+def _geometry_key(verts) -> tuple:
+    import hashlib
+
+    return hashlib.sha1(np.ascontiguousarray(verts, np.float64).tobytes()).hexdigest(), MAX_BOUNCES, MIN_ENERGY
+
+
+def _store_bytes(store: dict) -> int:
+    return sum(v[8] for v in store.values())
+
+
+def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
+    """Per-direction records of ``phi`` [n]: (``_FIELDS`` arrays, lost, bytes[, Fresnel weights]) from the store;
+    the directions not stored yet are traced (``TRACE_WORKERS`` threads) with ``fresnel`` at ``cos_theta`` and
+    come back with the trace's own Fresnel weights as a 10th entry (the store keeps their geometry only).  When
+    every direction is new (and ``phi`` ascending), the trace's ``ExitRecords`` themselves are returned."""
+    key = _geometry_key(verts)
+    with _GEOMETRY_LOCK:
+        store = _GEOMETRY.pop(key, None)
+        store = {} if store is None else store
+        _GEOMETRY[key] = store                         # most recently used last
+        have = {p: store.get(p) for p in set(phi.tolist())}
+    new = np.array(sorted(p for p, r in have.items() if r is None), np.float64)
+    traced = None
+    if new.size:
+        traced = r = _trace_directions(verts, new, fresnel, cos_theta, True)
+        whole = new.size == phi.size and np.array_equal(new, phi)   # all new, in order: the trace is the answer
+        extra = () if (r.fresnel is None or whole) else (r.fresnel,)
+        # grouped by direction once (views into one sorted copy per field)
+        order = np.argsort(r.sample, kind="stable")
+        cuts = np.searchsorted(r.sample[order], np.arange(new.size + 1)).tolist()
+        cols = [getattr(r, f)[order] for f in _FIELDS] + [x[order] for x in extra]
+        row_bytes = sum(c[:1].nbytes for c in cols[:6])
+        for k in range(new.size):
+            a, b = cuts[k], cuts[k + 1]
+            geo = tuple(c[a:b] for c in cols[:6]) + (cols[6][a:b, :int(cols[1][a:b].max(initial=0))].copy(),)
+            have[float(new[k])] = (geo + (float(r.lost[k]), row_bytes * (b - a) + geo[6].nbytes + 200)
+                                   + tuple(c[a:b] for c in cols[7:]))
+        if GEOMETRY_BYTES > 0:
+            with _GEOMETRY_LOCK:
+                store.update((float(p), have[float(p)][:9]) for p in new)
+                total = sum(_store_bytes(v) for v in _GEOMETRY.values())
+                while total > GEOMETRY_BYTES and _GEOMETRY:
+                    oldest = next(iter(_GEOMETRY))
+                    total -= _store_bytes(_GEOMETRY.pop(oldest))
+        if whole:
+            return traced
+    return [have[p] for p in phi.tolist()]
+
+
+def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
+    def run(p, F=fresnel, cs=cos_theta, cp=cos_path):
+        return trace_exact(verts, p, F if len(cs) else None, tuple(cs),
+                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cp)
+
+    if TRACE_HELPER and phi.ndim == 1 and phi.size >= _HELPER_MIN:
+        got = _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run)
+        if got is not None:
+            return got
     n = int(TRACE_WORKERS)
     if n <= 1 or phi.ndim != 1 or phi.size < _MIN_SPLIT:
         return run(phi)
@@ -183,6 +247,209 @@ def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     return _merge(list(_POOL[0][1].map(run, [phi[i] for i in idx])), idx, phi.size)
 
 
+# ----------------------------------------------------------------------------- a helper process (2 cores)
+#: Trace half of each batch of new view directions in a helper process (a plain Python running ``beam.py``
+#: alone, ``start_trace_helper``): the directions are independent and the tracer is many small numpy passes
+#: that hold the GIL, so threads do not scale (``TRACE_WORKERS``) but two processes do.  The helper traces
+#: geometry (``cos_path``); its directions' Fresnel weights are computed here (``beam.path_fresnel``, bit for
+#: bit the traced ones).  Off by default (a script or a render farm gets no extra process); live edits turn it
+#: on (``scratch_addon.live``).  Any failure of the helper falls back to tracing here.
+TRACE_HELPER = False
+#: start the helper in its own session (POSIX): with the kernel's autogroup scheduling every process of a
+#: session shares one CPU share, so under load a helper in Blender's session only takes CPU from Blender
+HELPER_OWN_SESSION = True
+_HELPER_MIN = 24              # fewer new directions: traced here (the round trip costs ~1 ms)
+_HELPER: dict = {"proc": None}
+_HELPER_LOCK = threading.Lock()
+_HELPER_FIELDS = ("sample", "pid", "bounces", "phi_o", "weight", "flux_ab", "lost", "bounds", "cos_path")
+_HELPER_CODE = r"""
+import importlib.util, pickle, sys
+import numpy as np
+spec = importlib.util.spec_from_file_location("_scratch_beam_helper", sys.argv[1])
+beam = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = beam
+spec.loader.exec_module(beam)
+inp, out = sys.stdin.buffer, sys.stdout.buffer
+pickle.dump("ready", out)
+out.flush()
+while True:
+    try:
+        verts, phi, kw, path = pickle.load(inp)
+    except EOFError:
+        break
+    try:
+        r = beam.trace_exact(verts, phi, None, (), cos_path=True, **kw)
+        res = {f: getattr(r, f) for f in sys.argv[2].split(",")}
+        cp = res.pop("cos_path")
+        res["cos_flat"] = cp[np.arange(cp.shape[1])[None, :] < r.bounces[:, None]]   # no padding
+        res["cos_width"] = cp.shape[1]
+        with open(path, "wb") as f:      # a file, not the pipe: no chunked hand-over between busy processes
+            pickle.dump(res, f, protocol=pickle.HIGHEST_PROTOCOL)
+        res = "done"
+    except Exception as exc:
+        res = repr(exc)
+    pickle.dump(res, out)
+    out.flush()
+"""
+
+
+def _python() -> str | None:
+    """The Python interpreter to run the helper with (Blender's bundled one; None if ``sys.executable`` is not a
+    Python, e.g. Blender itself in old versions)."""
+    import os
+
+    exe = sys.executable or ""
+    return exe if os.path.basename(exe).lower().startswith("python") else None
+
+
+def start_trace_helper() -> bool:
+    """Start the helper process now (it imports numpy in the background, ~0.2 s); True if it runs."""
+    import pickle  # noqa: F401
+    import subprocess
+
+    with _HELPER_LOCK:
+        proc = _HELPER["proc"]
+        if proc is not None and proc.poll() is None:
+            return True
+        exe = _python()
+        if exe is None:
+            return False
+        from . import beam as _beam
+
+        try:
+            if not _HELPER.get("atexit"):         # the helper ends with its stdin; its temp file goes here
+                import atexit
+
+                atexit.register(stop_trace_helper)
+                _HELPER["atexit"] = True
+            _HELPER["proc"] = subprocess.Popen([exe, "-c", _HELPER_CODE, _beam.__file__, ",".join(_HELPER_FIELDS)],
+                                               stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                               stderr=subprocess.DEVNULL, start_new_session=HELPER_OWN_SESSION)
+            _HELPER["ready"] = False
+        except OSError:
+            _HELPER["proc"] = None
+            return False
+    return True
+
+
+def stop_trace_helper() -> None:
+    """End the helper process (if any)."""
+    with _HELPER_LOCK:
+        proc, _HELPER["proc"] = _HELPER["proc"], None
+    if proc is not None:
+        try:
+            proc.stdin.close()
+            proc.wait(timeout=2)
+        except Exception:  # noqa: BLE001 - it is ours: make sure it ends
+            proc.kill()
+    path = _HELPER.pop("file", None)
+    if path is not None:
+        import os
+
+        with contextlib.suppress(OSError):
+            os.remove(path)
+
+
+#: seconds the helper may take beyond our own half before it is given up (and ended)
+HELPER_TIMEOUT_S = 60.0
+
+
+def _wait_readable(stream, timeout: float) -> bool:
+    """True once ``stream`` has data (POSIX ``select``; elsewhere True: a blocking read)."""
+    try:
+        import select
+
+        return bool(select.select([stream], [], [], timeout)[0])
+    except (ImportError, OSError, ValueError):
+        return True
+
+
+def _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run):
+    """Half of ``phi`` (interleaved) traced by the helper, the other half here at the same time; None when the
+    helper is busy (another thread), not running or failed (the caller traces everything here)."""
+    import pickle
+
+    if not _HELPER_LOCK.acquire(blocking=False):
+        return None
+    try:
+        proc = _HELPER["proc"]
+        if proc is None or proc.poll() is not None:
+            _HELPER["proc"] = None          # ended: forgotten (``start_trace_helper`` starts a new one)
+            return None
+        idx = [np.arange(0, phi.size, 2), np.arange(1, phi.size, 2)]
+        path = _HELPER.get("file")
+        if path is None:
+            import os
+            import tempfile
+
+            fd, path = tempfile.mkstemp(prefix="scratch_trace_", suffix=".pkl")
+            os.close(fd)
+            _HELPER["file"] = path
+        try:
+            pickle.dump((np.asarray(verts), phi[idx[1]], {"max_bounces": MAX_BOUNCES, "min_energy": MIN_ENERGY}, path),
+                        proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            proc.stdin.flush()
+        except (OSError, ValueError):
+            _HELPER["proc"] = None
+            return None
+        mine = run(phi[idx[0]], cp=True)
+        try:
+            if not _wait_readable(proc.stdout, HELPER_TIMEOUT_S):
+                raise TimeoutError("trace helper")
+            if not _HELPER.get("ready"):
+                if pickle.load(proc.stdout) != "ready":
+                    raise ValueError("helper")
+                _HELPER["ready"] = True
+            if pickle.load(proc.stdout) != "done":
+                raise ValueError("helper")
+            with open(path, "rb") as f:
+                res = pickle.load(f)
+        except Exception:  # noqa: BLE001 - a dead or confused helper: stop it, trace here
+            _HELPER["proc"] = None
+            proc.kill()
+            return None
+        flat, width = res.pop("cos_flat"), int(res.pop("cos_width"))
+        cp = np.zeros((res["bounces"].size, width))
+        cp[np.arange(width)[None, :] < res["bounces"][:, None]] = flat
+        theirs = ExitRecords(fresnel=None, cos_path=cp, **res)
+        if mine.fresnel is not None:
+            theirs.fresnel = path_fresnel(theirs.cos_path, theirs.bounces, theirs.weight, fresnel,
+                                          np.asarray(cos_theta, np.float64))
+        out = _merge([mine, theirs], idx, phi.size)
+        if not cos_path:
+            out.cos_path = None
+        return out
+    finally:
+        _HELPER_LOCK.release()
+
+
+def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
+    """Exit records of view directions ``phi`` (``beam.ExitRecords``; Fresnel weights at ``cos_theta`` when
+    ``fresnel`` is given), from the per-profile geometry store (``GEOMETRY_BYTES``): the records of each direction
+    are those of ``beam.trace_exact`` bit for bit, grouped by direction (in its order within a direction)."""
+    phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
+    verts = profile.periodic_vertices()
+    if GEOMETRY_BYTES <= 0 or phi.ndim != 1 or phi.size == 0 or not np.all(np.isfinite(phi)):
+        return _trace_directions(verts, phi, fresnel, cos_theta)
+    F = fresnel if (fresnel is not None and len(cos_theta)) else None
+    cs = np.asarray(cos_theta, np.float64) if F is not None else ()
+    recs = _geometry_records(verts, phi, F, cs)
+    if isinstance(recs, ExitRecords):      # every direction traced just now
+        return recs
+    sample = np.repeat(np.arange(phi.size), [r[0].size for r in recs]).astype(np.int64)
+    pid, nb, phi_o, w, ab, bd = (np.concatenate([r[q] for r in recs]) for q in range(6))
+    cp = _pad_cat([r[6] for r in recs])                                  # bounce cosines, zero-padded
+    fw = None
+    if F is not None:           # stored directions: weighted now (traced ones carry the trace's own weights)
+        old = [r for r in recs if len(r) == 9]
+        done = iter(np.split(path_fresnel(_pad_cat([r[6] for r in old]), np.concatenate([r[1] for r in old]),
+                                          np.concatenate([r[3] for r in old]), F, cs),
+                             np.cumsum([r[0].size for r in old])[:-1])) if old else iter(())
+        fw = np.concatenate([r[9] if len(r) > 9 else next(done) for r in recs])
+    return ExitRecords(sample=sample, pid=pid, bounces=nb, phi_o=phi_o, weight=w, fresnel=fw, flux_ab=ab,
+                       lost=np.array([r[7] for r in recs]), bounds=bd, cos_path=cp)
+
+
 def _merge(parts, idx, E):
     """One ``ExitRecords`` of traces of the directions ``phi[idx[k]]`` (``parts[k]``), samples renumbered."""
     cat = lambda k: np.concatenate([getattr(r, k) for r in parts])  # noqa: E731
@@ -192,7 +459,18 @@ def _merge(parts, idx, E):
     return type(parts[0])(
         sample=np.concatenate([i[r.sample] for r, i in zip(parts, idx)]), pid=cat("pid"), bounces=cat("bounces"),
         phi_o=cat("phi_o"), weight=cat("weight"), fresnel=None if parts[0].fresnel is None else cat("fresnel"),
-        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"))
+        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"),
+        cos_path=None if parts[0].cos_path is None else _pad_cat([r.cos_path for r in parts]))
+
+
+def _pad_cat(arrays) -> np.ndarray:
+    """Row-wise concatenation of 2D arrays of different widths, zero-padded to the widest."""
+    out = np.zeros((sum(a.shape[0] for a in arrays), max((a.shape[1] for a in arrays), default=0)))
+    at = 0
+    for a in arrays:
+        out[at:at + a.shape[0], :a.shape[1]] = a
+        at += a.shape[0]
+    return out
 
 
 def exact_slice(profile: Profile, phi_o, fresnel=None, theta_o=()):
@@ -254,19 +532,23 @@ def aim_interval(M: int, centroid, even, phi_node, phi_o):
 
 
 def interval_moments(lo, hi):
-    """Mean of (1, sin, cos, sin²) of φ uniform in [lo, hi] ∩ [-π/2, π/2] times the fraction kept: [..., 4]."""
+    """Mean of (1, sin, cos, sin²) of φ uniform in [lo, hi] ∩ [-π/2, π/2] times the fraction kept: [..., 4].
+
+    With m = (a + b) / 2, h = (b - a) / 2 of the kept interval [a, b] and sinc h = sin h / h: E[sin] =
+    sin m sinc h, E[cos] = cos m sinc h, E[sin²] = (1 - cos 2m sinc h cos h) / 2 (sum-to-product forms of
+    the interval's integrals: four sines and cosines per element, exact as h -> 0)."""
     lo, hi = np.broadcast_arrays(np.asarray(lo, float), np.asarray(hi, float))
     a, b = np.clip(lo, -0.5 * np.pi, 0.5 * np.pi), np.clip(hi, -0.5 * np.pi, 0.5 * np.pi)
     d = hi - lo
     point = d < 1e-9
-    keep = np.where(point, (np.abs(lo) <= 0.5 * np.pi).astype(float), np.clip(b - a, 0.0, None) / np.where(point, 1.0, d))
-    span = np.where(b - a > 1e-12, b - a, 1.0)
-    small = (b - a) <= 1e-12
+    w = np.maximum(b - a, 0.0)
+    keep = np.where(point, (np.abs(lo) <= 0.5 * np.pi).astype(float), w / np.where(point, 1.0, d))
     m = 0.5 * (a + b)
-    s = np.where(small, np.sin(m), (np.cos(a) - np.cos(b)) / span)
-    c = np.where(small, np.cos(m), (np.sin(b) - np.sin(a)) / span)
-    s2 = np.where(small, np.sin(m) ** 2, 0.5 - (np.sin(2 * b) - np.sin(2 * a)) / (4 * span))
-    return np.stack([keep, keep * s, keep * c, keep * s2], -1)
+    h = 0.5 * w
+    sm, cm, ch = np.sin(m), np.cos(m), np.cos(h)
+    sinc = np.where(h > 1e-12, np.sin(h) / np.where(h > 1e-12, h, 1.0), 1.0)
+    ks = keep * sinc
+    return np.stack([keep, ks * sm, ks * cm, keep * 0.5 * (1.0 - (cm * cm - sm * sm) * sinc * ch)], -1)
 
 
 def _row_moments(mass, centroid, even, phi_node, phi_o):
@@ -275,8 +557,8 @@ def _row_moments(mass, centroid, even, phi_node, phi_o):
     lo, hi = aim_interval(M, centroid, even, phi_node, phi_o)
     im = interval_moments(lo, hi)                                                     # [..., M, 4]
     if mass.ndim == centroid.ndim:
-        return np.einsum("...m,...mq->...q", mass, im)
-    return np.einsum("...mc,...mq->...cq", mass, im)
+        return np.matmul(mass[..., None, :], im)[..., 0, :]
+    return np.matmul(np.swapaxes(mass, -1, -2), im)
 
 
 def _interval_of(vs_phi, cell_interval, phi_o):
@@ -432,7 +714,10 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     # exact slice moments per node, theta sample and channel (for the rank choice)
     e = -0.5 * np.pi + (np.arange(M) + 0.5) * (np.pi / M)
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
-    exact = np.einsum("smtc,qm->stcq", fm_b, basis_f)                                 # [S, T, C, 3]
+    exact = np.tensordot(fm_b, basis_f, axes=([1], [1]))                              # [S, T, C, 3]
+    # the model's moments: Y is constant over a group of bins, so sum mass x moment function per group first
+    gq = np.matmul(mass_b.reshape(S, Mg, group)[:, :, None, :],
+                   basis_f.reshape(3, Mg, group).transpose(1, 2, 0)[None])[:, :, 0, :]    # [S, Mg, 3]
     best = None
     Ys = [Y[..., c][live] for c in range(C)]                                              # [L, T] per channel
     Vts = [np.linalg.svd(sw[:, None] * Yc, full_matrices=False)[2] for Yc in Ys]       # one SVD per channel
@@ -444,8 +729,8 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
             Bk = Vts[c][:K]
             B[:, :, c] = Bk
             coef[live, :, c] = Yc @ Bk.T
-        Yk = np.maximum(np.einsum("smkc,ktc->smtc", coef, B), 0.0)
-        model = np.einsum("sm,smtc,qm->stcq", mass_b, np.repeat(Yk, group, axis=1), basis_f)
+        Yk = np.maximum(np.matmul(coef.transpose(3, 0, 1, 2), B.transpose(2, 0, 1)[:, None]), 0.0)   # [C, S, Mg, T]
+        model = np.matmul(Yk.transpose(0, 1, 3, 2), gq[None]).transpose(1, 2, 0, 3)                # [S, T, C, 3]
         a = np.abs(model[..., 0] - exact[..., 0]) / np.maximum(exact[..., 0], 1e-6)
         d = np.abs(model[..., 1:] - exact[..., 1:]).max(-1) / np.maximum(exact[..., 0], 1e-6)
         err = float((np.maximum(a, d).max(axis=(1, 2)) / _relax(phi)).max())

@@ -44,6 +44,7 @@ def test_split_trace_equals_one_call_record_for_record(monkeypatch):
     prof = profiles.quartic(0.09)
     phi = np.linspace(-0.5 * np.pi, 0.5 * np.pi, 37)
     cos = np.cos(slices.theta_of_coordinate(np.linspace(0.0, 1.0, 5)))
+    monkeypatch.setattr(slices, "GEOMETRY_BYTES", 0)          # every call traces (no stored geometry)
     monkeypatch.setattr(slices, "TRACE_WORKERS", 1)
     one = slices._trace(prof, phi, fres, cos)
     monkeypatch.setattr(slices, "TRACE_WORKERS", 3)
