@@ -25,14 +25,19 @@ generate_multi_closure``: NODE_JUMP_IF_ZERO / NODE_JUMP_IF_ONE, taken when the f
 graph keeps the per-sample work behind Mix Shaders: the scratch closure and its lookups behind min(ᾱ, 1) (not run
 where no layer covers the point), the whole layer system behind the cull switch [d >= CULL_DENSITY] (a culled
 material costs its base).  What a node costs (``bench/scratch_svm_profile.py``, callgrind instructions per shading
-point; the baseline's whole sample is ~4,800): every node is one SVM instruction (~47) plus one more (~18) for each
+point; the baseline's whole sample is ~4,760): every node is one SVM instruction (~47) plus one more (~18) for each
 unlinked input it reads, used or not (a Math node reads three: ~65 with both operands linked, ~83 with a constant
 operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image lookup ~170, a Mapping node ~350
-(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260.  A layer
-therefore costs ~1,100 (Mapping, Voronoi) plus
-~280 of pick bookkeeping, and four layers alone are ~1.1x the baseline's sample: the 1.3x goal at 4 layers is out of
-reach of any graph that tests every layer's coverage with a Voronoi node.  Constants that depend only on the tables
-live in the images (the C image holds the tilt's affine terms: two Math nodes)."""
+(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260 (~280 Z-axis).
+So the layer coordinates of eq. 7 are each layer Voronoi's own texture mapping (``layer_feature_distance``: a
+matrix Cycles folds at sync, ~60), and a layer of the picked-layer graph costs its Voronoi plus ~150 for [F1 < d]
+and the coverage sum, plus ~170 of pick bookkeeping behind the Mix Shader.  The floor of any graph that tests each
+layer's coverage with a Voronoi node (``bench/scratch_svm_profile`` "floor" rows: base, 4 Voronoi, coverage, one
+plain Glossy behind the Mix Shader) is 9,010 instructions per sample at fig1c's 4 layers, 1.89x the baseline (2.04x
+with the layer pick and frame rotation): the 1.3x goal at 4 layers is out of reach on SVM; the table lobe adds
+~0.6x on top (three 2D lookups with their Combine XYZ, the φo node pick, the alias draw, the tilt rotation).
+Constants that depend only on the tables live in the images (the C image holds the tilt's affine terms: two Math
+nodes)."""
 from __future__ import annotations
 
 import math
@@ -224,7 +229,10 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
     if twin == "svm" and not cost_off & 16 and races(lobe_data, layers):   # the Cycles twin: layers in a nested Mix Shader race (``_layer_race``)
-        h_frac = noise(17.0)
+        # the aim inside a table bin: the residual of the race's row pick, fract(h_layer P) (uniform, independent of
+        # the row floor(h_layer P) and so of the picked layer; 13 bits at P = 2048) instead of a second hash
+        n_orders = float(len(race_orders(layers.n_layers)))
+        h_frac = g.math("FRACT", g.math("MULTIPLY", h_layer, n_orders))
         race_args = dict(geo=geo, N=N, wo=wo, t=t, uv=uvn.outputs["UV"], h_slice=h_slice, h_layer=h_layer,
                          h_lobe=h_lobe, h_frac=h_frac)
         return _cull_gate(g, _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls,
@@ -467,15 +475,17 @@ def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.t
                                                           inp["h_layer"]))
     par[LAYER_CONST] = f"{twin}/race_par/0"
     c = par.outputs["Color"]
+    theta = gg.separate(c)[2]
     m = gg.node("ShaderNodeMapping", vector_type="TEXTURE")
     gg._set(m.inputs["Vector"], inp["UV"])
     gg._set(m.inputs["Rotation"], gg.vmath("MULTIPLY", c, (0.0, 0.0, 1.0)))   # (0, 0, Θ)
     gg._set(m.inputs["Scale"], inp["Size"])
-    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read
+    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read.  (A Z-axis Vector Rotate, a divide
+    # by (l, w, 1) and the offset instead: 16,010 instructions per sample at fig1c's 16 layers, 170 more; callgrind)
     y = gg.vmath("ADD", m.outputs["Vector"], c)
     alpha = gg.math("LESS_THAN", _feature_distance(gg, y, cost_off), inp["Threshold"])  # [F1]_d, eq. 7
     tint_in = inp["Tint"] if isinstance(tint, bpy.types.NodeSocket) else tint
-    lobe = _frame_lobe(gg, lobe_data, name, gg.separate(c)[2], inp["Normal"], inp["Incoming"], inp["Tangent"],
+    lobe = _frame_lobe(gg, lobe_data, name, theta, inp["Normal"], inp["Incoming"], inp["Tangent"],
                        inp["h_slice"], inp["h_lobe"], inp["h_frac"], tint_in, cost_off)
     mix = gg.node("ShaderNodeMixShader")
     gg._set(mix.inputs["Fac"], alpha)
@@ -536,7 +546,7 @@ def layer_feature_distance(g, uv, theta: float, xi, size, tag: str | None = None
     y is the Voronoi node's own texture mapping (``set_texture_mapping``): Cycles folds it into one 3x4 matrix at
     sync, a matrix-vector product per shading point, where a Mapping node builds its matrix from the Euler
     rotation every sample (callgrind, bench/scratch_svm_profile: ~350 instructions per layer and shading point
-    for the Mapping node, ~40 for the texture mapping).  l and w are therefore compiled values: live edits and
+    for the Mapping node, ~60 for the texture mapping).  l and w are therefore compiled values: live edits and
     keyframes of the panel's Length / Width rewrite the mapping (``set_layer_size``, called by
     ``scratch_addon.live``).  ``tag`` ("<twin>/%s/<k>") marks the node for ``set_layer_constants``;
     ``cost_off & 1`` (bench only): the distance to the cell centre (an image, the same mapping) instead."""

@@ -133,3 +133,49 @@ def test_set_layer_size_writes_both_twins(addon, scene):
         # L = -R_z(Θ) S ξ
         assert tuple(tm.translation)[:2] == pytest.approx((-(c * 0.5 * xi0 - s * 0.01 * xi1),
                                                           -(s * 0.5 * xi0 + c * 0.01 * xi1)), rel=1e-5, abs=1e-7)
+
+
+def test_race_position_layer_coordinates_are_eq7(addon, scene, tmp_path):
+    """A layer race (16 layers) reads the layer of its position from the order row floor(h_layer P): the first
+    position's F1 equals the numpy Voronoi twin of that layer (eq. 7, the Z-axis rotate + divide + offset of
+    ``race_group``) at the shaded UV point.  Two renders with the same seed shade the same points: (F1, u, v)
+    and (h_layer, u, v)."""
+    svm, layers_mod = _mods(addon)
+    render = addon.render
+    scene = render.reset_scene()
+    lp = layers_mod.LayerParams(**dict(LAYERS, n_layers=16))
+    mat = addon.api.make_scratched_material("fig1c_scratched", layers=dict(LAYERS, n_layers=16), resolution=64,
+                                            backend="svm")
+    render.add_plane(scene, size=2.0, material=mat)
+    render.add_camera(scene, location=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), ortho_scale=1.6)
+    render.configure_cycles(scene, samples=1, res=(40, 40), seed=0)
+    grp = next(n.node_tree for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeGroup"
+               and n.node_tree is not None and n.node_tree.get(svm.RACE_GROUP))
+    gin = next(n for n in grp.nodes if n.bl_idname == "NodeGroupInput")
+    gout = next(n for n in grp.nodes if n.bl_idname == "NodeGroupOutput")
+    vor = next(n for n in grp.nodes if n.bl_idname == "ShaderNodeTexVoronoi")
+    sep = grp.nodes.new("ShaderNodeSeparateXYZ")
+    grp.links.new(gin.outputs["UV"], sep.inputs[0])
+    comb = grp.nodes.new("ShaderNodeCombineXYZ")
+    grp.links.new(sep.outputs[0], comb.inputs[1])
+    grp.links.new(sep.outputs[1], comb.inputs[2])
+    em = grp.nodes.new("ShaderNodeEmission")
+    grp.links.new(comb.outputs[0], em.inputs["Color"])
+    grp.links.new(em.outputs[0], gout.inputs["Shader"])
+    # the outermost position (0) feeds the material output; switch the Cycles path on (no OSL)
+    grp.links.new(vor.outputs["Distance"], comb.inputs[0])
+    f1_img, _ = render.render_array(scene, str(tmp_path), "f1")
+    grp.links.new(gin.outputs["h_layer"], comb.inputs[0])
+    h_img, _ = render.render_array(scene, str(tmp_path), "h")
+    assert np.array_equal(f1_img[..., 1:], h_img[..., 1:])          # the same shading points
+    uv = f1_img[..., 1:3].astype(np.float64)
+    order = svm.race_orders(16)
+    row = np.clip(np.floor(h_img[..., 0].astype(np.float64) * len(order)), 0, len(order) - 1).astype(int)
+    k = order[row, 0]
+    theta, xi = layers_mod.layer_transforms(lp)
+    c, s = np.cos(theta[k]), np.sin(theta[k])
+    y = np.stack([(c * uv[..., 0] + s * uv[..., 1]) / lp.length + xi[k, 0],
+                  (-s * uv[..., 0] + c * uv[..., 1]) / lp.width + xi[k, 1]], -1)
+    err = np.abs(f1_img[..., 0] - layers_mod.voronoi_f1(y))
+    # a row read off by one near a row boundary (float32 h P) is a different layer: allow 1 % of the pixels
+    assert len(np.unique(k)) > 8 and np.mean(err < 1e-4) > 0.99, (np.mean(err < 1e-4), err.max())
