@@ -31,7 +31,8 @@ operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image 
 (it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260 (~280 Z-axis).
 So the layer coordinates of eq. 7 are each layer Voronoi's own texture mapping (``layer_feature_distance``: a
 matrix Cycles folds at sync, ~60), and a layer of the picked-layer graph costs its Voronoi plus ~150 for [F1 < d]
-and the coverage sum, plus ~170 of pick bookkeeping behind the Mix Shader.  The floor of any graph that tests each
+and the coverage sum; the layer pick, its hash and the frame rotation add ~680 per sample behind the Mix Shader.  The
+floor of any graph that tests each
 layer's coverage with a Voronoi node (``bench/scratch_svm_profile`` "floor" rows: base, 4 Voronoi, coverage, one
 plain Glossy behind the Mix Shader) is 9,010 instructions per sample at fig1c's 4 layers, 1.89x the baseline (2.04x
 with the layer pick and frame rotation): the 1.3x goal at 4 layers is out of reach on SVM; the table lobe adds
@@ -320,11 +321,11 @@ def race_visits(n_layers: int, density: float) -> float:
 def races(lobe_data: dict, layers) -> bool:
     """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
     than one layer and a race that visits fewer than half the layers (``race_visits``; fig1c 16 layers at
-    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  Since a race position
-    reads its layer with one lookup (``race_params_image``) a visit costs about what a layer of the picked-layer
-    graph costs with its pick (callgrind, bench/scratch_svm_profile: fig1c 4 layers 13,401 instructions per sample
-    as a race, 13,590 picked, 1.4 % apart); the half-the-layers rule stays because a race material also syncs a lobe
-    per position and an EEVEE twin (scene sync, bench/scratch_scale).
+    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  A race position reads its
+    layer with one lookup (``race_params_image``) and maps it with a Mapping node (its rotation is per sample), where
+    the picked-layer graph's layers are texture-mapped Voronoi nodes: fig1c at 4 layers costs 13,263 instructions per
+    sample as a race, 12,438 picked (callgrind, bench/scratch_svm_profile); a race material also syncs a lobe per
+    position and an EEVEE twin (scene sync, bench/scratch_scale): hence the half-the-layers rule.
     The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
     if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
         return False
