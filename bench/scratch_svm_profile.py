@@ -68,7 +68,64 @@ def setups(only: str = ""):
         mat.node_tree.links.new(node.outputs[0], mat.node_tree.nodes["Material Output"].inputs["Surface"])
         return mat
 
+    def floor(pick):
+        """The floor of a 4-layer graph that tests each layer's coverage with a Voronoi node: the base, the 4
+        texture-mapped Voronoi nodes, [F1 < d], the coverage sum and min(ᾱ, 1) behind a Mix Shader, and one plain
+        Glossy as the scratch closure (``pick``: Θ of a covering layer picked and the Glossy's tangent rotated by
+        it, as the real graph does); everything else the real graph runs is the lobe."""
+        def make(materials, presets, sm):
+            from scratch_materials.node_groups import scratch_svm
+            from scratch_materials.precompute.scratch import layers as scratch_layers
+
+            fig1c = dict(presets.get("fig1c_scratched").params)
+            params = sm.validate(**dict(fig1c, layers=dict(fig1c["layers"], n_layers=4)))
+            lp = params.layers
+            theta_k, xi_k = scratch_layers.layer_transforms(lp)
+            mat = materials.new_material(f"floor {pick}")
+            tree = mat.node_tree
+            g = scratch_svm._G(tree)
+            base = sm._base_node(tree, params)
+            uv = g.node("ShaderNodeUVMap").outputs["UV"]
+            acc, accs = None, []
+            for k in range(lp.n_layers):
+                f1 = scratch_svm.layer_feature_distance(g, uv, theta_k[k], xi_k[k], (lp.length, lp.width))
+                a = g.math("LESS_THAN", f1, float(lp.density) + 1e-7)
+                acc = a if acc is None else g.math("ADD", acc, a)
+                accs.append(acc)
+            glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+            glossy.inputs["Roughness"].default_value = 0.05
+            glossy.inputs["Anisotropy"].default_value = 0.9   # anisotropic: Cycles keeps the tangent (the pick)
+            tan = g.node("ShaderNodeTangent", direction_type="UV_MAP")
+            if pick:
+                geo = g.node("ShaderNodeNewGeometry")
+                wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="3D")
+                g._set(wn.inputs["Vector"], geo.outputs["Position"])
+                target = g.math("MULTIPLY", wn.outputs["Value"], acc)
+                theta = float(theta_k[-1])
+                for k in range(lp.n_layers - 2, -1, -1):
+                    mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
+                    g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
+                    g._set(mix.inputs[2], theta)
+                    g._set(mix.inputs[3], float(theta_k[k]))
+                    theta = mix.outputs[0]
+                rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
+                g._set(rot.inputs["Vector"], tan.outputs["Tangent"])
+                g._set(rot.inputs["Axis"], geo.outputs["Normal"])
+                g._set(rot.inputs["Angle"], theta)
+                g._set(glossy.inputs["Tangent"], rot.outputs["Vector"])
+            else:
+                g._set(glossy.inputs["Tangent"], tan.outputs["Tangent"])
+            mixs = g.node("ShaderNodeMixShader")
+            g._set(mixs.inputs["Fac"], g.math("MINIMUM", acc, 1.0))
+            tree.links.new(base.outputs[0], mixs.inputs[1])
+            tree.links.new(glossy.outputs[0], mixs.inputs[2])
+            tree.links.new(mixs.outputs[0], tree.nodes["Material Output"].inputs["Surface"])
+            return mat
+        return make
+
     rows = [("baseline: SVM aniso Glossy (MS GGX)", baseline), ("base only (Metallic, iron)", base_only),
+            ("svm 4 layers floor: Voronoi coverage + one Glossy", floor(False)),
+            ("svm 4 layers floor + layer pick and frame", floor(True)),
             ("svm 4 layers", scratch(4)), ("svm 16 layers", scratch(16)),
             ("svm 4 layers, race", scratch(4, race=True)), ("svm 16 layers, no race", scratch(16, race=False))]
     rows += [(f"svm 4 layers - {stage}", scratch(4, cost_off=bit)) for stage, bit in scratch_cost.STAGES.items()
@@ -86,7 +143,7 @@ def setups(only: str = ""):
 #: value); (Ir(micro) - Ir(micro: none)) / 32 / samples = the SVM cost of one such node per shading point
 MICRO = ("none", "math ADD(x, const)", "math ADD(x, const), Value3 linked", "math ADD(x, y), Value3 linked",
          "map range (linear, Steps linked)", "voronoi 2D F1", "image Closest", "white noise 4D color",
-         "mapping (texture)", "vector rotate (axis angle)")
+         "mapping (texture)", "vector rotate (axis angle)", "vector rotate (z axis)")
 MICRO_N = 32
 
 
@@ -157,9 +214,10 @@ def _micro(kind):
                 y = m.outputs["Vector"]
             elif kind.startswith("vector rotate"):
                 m = nodes.new("ShaderNodeVectorRotate")
-                m.rotation_type = "AXIS_ANGLE"
+                m.rotation_type = "Z_AXIS" if "z axis" in kind else "AXIS_ANGLE"
                 links.new(y, m.inputs["Vector"])
-                links.new(geo.outputs["Normal"], m.inputs["Axis"])
+                if "z axis" not in kind:
+                    links.new(geo.outputs["Normal"], m.inputs["Axis"])
                 links.new(x, m.inputs["Angle"])
                 y = m.outputs["Vector"]
         if kind.startswith(("mapping", "vector rotate")):
@@ -235,6 +293,54 @@ def parse(cg: str, top: int) -> tuple[int, list[tuple[int, str]]]:
     return total, funcs[:top]
 
 
+#: Cycles functions (self cost) by shading stage, for ``breakdown``; the rest is the integrator, ray tracing and the
+#: closures (the baseline's own work)
+STAGE_FUNCS = (("layer Voronoi", ("voronoi_f1", "svm_node_tex_voronoi")),
+               ("Mapping node (matrix per sample) + sin/cos (the closures' too)", ("svm_mapping", "sincosf", "svm_node_mapping")),
+               ("image lookups", ("kernel_tex_image_interp", "svm_node_tex_image")),
+               ("Math / Vector Math nodes", ("svm_math", "svm_vector_math", "powf", "atan2f", "atanf", "svm_node_math",
+                                             "svm_node_vector_math")),
+               ("Vector Rotate", ("svm_node_vector_rotate",)),
+               ("White Noise", ("svm_node_tex_white_noise",)),
+               ("SVM dispatch (svm_eval_nodes: per node, per unlinked input, inlined small nodes such as the texture "
+                "mapping)", ("svm_eval_nodes",)))
+
+
+def breakdown(cg: str) -> dict:
+    """Self instructions of a callgrind file by ``STAGE_FUNCS`` stage (+ "rest" and "total")."""
+    ann = subprocess.run(["callgrind_annotate", "--threshold=100", cg], check=True, capture_output=True,
+                         text=True).stdout
+    out = {name: 0 for name, _f in STAGE_FUNCS}
+    out["rest (integrator, rays, closures)"] = 0
+    total = 0
+    for line in ann.splitlines():
+        fm = re.match(r"^\s*([\d,]+)\s+\([\s\d.]+%\)\s+[^:\s]*:(.*)$", line)
+        if not fm or "PROGRAM TOTALS" in line:
+            continue
+        ir, fn = int(fm.group(1).replace(",", "")), fm.group(2)
+        total += ir
+        short = _short(fn)
+        for name, keys in STAGE_FUNCS:
+            if any(k in short for k in keys):
+                out[name] += ir
+                break
+        else:
+            out["rest (integrator, rays, closures)"] += ir
+    out["total"] = total
+    return out
+
+
+def breakdown_table(named: list[tuple[str, str]], n_samples: int, base_total: float) -> tuple[list, list]:
+    """(headers, rows) of per-sample instructions by stage for [(column name, callgrind file)]."""
+    cols = [(name, breakdown(cg)) for name, cg in named]
+    stages = list(cols[0][1])
+    rows = []
+    for st in stages:
+        rows.append([st] + [f"{c[st] / n_samples:,.0f}" for _n, c in cols])
+    rows.append(["ratio to the baseline"] + [f"{c['total'] / base_total:.3f}x" for _n, c in cols])
+    return ["stage (Ir per sample)"] + [n for n, _c in cols], rows
+
+
 def _short(sig: str) -> str:
     """A readable function name: drop template arguments, parameter lists and the ccl:: namespace."""
     s = sig.strip()
@@ -263,7 +369,16 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--out", default="scratch_svm_profile")
     ap.add_argument("--keep", default="", help="folder to keep the .blend and callgrind files in")
     ap.add_argument("--reparse", action="store_true", help="re-read the callgrind files kept in --keep")
+    ap.add_argument("--breakdown", nargs="*", default=None,
+                    help="'column=file.cg' ...: per-stage table of kept callgrind files (first = the baseline)")
     a = ap.parse_args(argv)
+    if a.breakdown is not None:
+        named = [tuple(x.split("=", 1)) for x in a.breakdown]
+        n = a.res[0] * a.res[1] * a.spp
+        headers, rows = breakdown_table(named, n, breakdown(named[0][1])["total"])
+        report(a.out, headers, rows, "callgrind self instructions of Cycles' path-tracing loop by function, grouped "
+               "by stage (STAGE_FUNCS), per sample (32x32 px, 4 spp, one thread): deterministic, load-free.")
+        return 0
     folder = a.keep or tempfile.mkdtemp(prefix="bench_svm_profile_")
     os.makedirs(folder, exist_ok=True)
     n_samples = a.res[0] * a.res[1] * a.spp

@@ -45,8 +45,8 @@ class Socket:
 
 #: property -> socket on each path (``scratch_addon.live`` writes them; ``scratch_svm.build(controls=)`` reads them)
 SOCKETS = (
-    Socket("length", "controls", ("Length",), osl="Length", svm="1 / l in y_k (eq. 7)", default=0.2, min_value=1e-6),
-    Socket("width", "controls", ("Width",), osl="Width", svm="1 / w in y_k (eq. 7)", default=2e-4, min_value=1e-7),
+    Socket("length", "controls", ("Length",), osl="Length", svm="1 / l in y_k (eq. 7): the layer Voronoi's texture mapping, written on change", default=0.2, min_value=1e-6),
+    Socket("width", "controls", ("Width",), osl="Width", svm="1 / w in y_k (eq. 7): the layer Voronoi's texture mapping, written on change", default=2e-4, min_value=1e-7),
     Socket("density", "controls", ("Density",), osl="Density", svm="threshold d of [F1]_d (eq. 7)", default=0.6,
            min_value=0.0, max_value=1.0),
     Socket("tint", "controls", ("Tint",), osl="Tint", svm="lobe colour x tint", socket_type="NodeSocketColor",

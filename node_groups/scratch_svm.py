@@ -25,14 +25,20 @@ generate_multi_closure``: NODE_JUMP_IF_ZERO / NODE_JUMP_IF_ONE, taken when the f
 graph keeps the per-sample work behind Mix Shaders: the scratch closure and its lookups behind min(ᾱ, 1) (not run
 where no layer covers the point), the whole layer system behind the cull switch [d >= CULL_DENSITY] (a culled
 material costs its base).  What a node costs (``bench/scratch_svm_profile.py``, callgrind instructions per shading
-point; the baseline's whole sample is ~4,800): every node is one SVM instruction (~47) plus one more (~18) for each
+point; the baseline's whole sample is ~4,760): every node is one SVM instruction (~47) plus one more (~18) for each
 unlinked input it reads, used or not (a Math node reads three: ~65 with both operands linked, ~83 with a constant
 operand or a unary op); a 2D Voronoi ~770 (its 9 hashed cells), a Closest image lookup ~170, a Mapping node ~350
-(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260.  A layer
-therefore costs ~1,100 (Mapping, Voronoi) plus
-~280 of pick bookkeeping, and four layers alone are ~1.1x the baseline's sample: the 1.3x goal at 4 layers is out of
-reach of any graph that tests every layer's coverage with a Voronoi node.  Constants that depend only on the tables
-live in the images (the C image holds the tilt's affine terms: two Math nodes)."""
+(it turns its Euler rotation into a matrix per sample), a 4D White Noise ~290, a Vector Rotate ~260 (~280 Z-axis).
+So the layer coordinates of eq. 7 are each layer Voronoi's own texture mapping (``layer_feature_distance``: a
+matrix Cycles folds at sync, ~60), and a layer of the picked-layer graph costs its Voronoi plus ~150 for [F1 < d]
+and the coverage sum; the layer pick, its hash and the frame rotation add ~680 per sample behind the Mix Shader.  The
+floor of any graph that tests each
+layer's coverage with a Voronoi node (``bench/scratch_svm_profile`` "floor" rows: base, 4 Voronoi, coverage, one
+plain Glossy behind the Mix Shader) is 9,010 instructions per sample at fig1c's 4 layers, 1.89x the baseline (2.04x
+with the layer pick and frame rotation): the 1.3x goal at 4 layers is out of reach on SVM; the table lobe adds
+~0.6x on top (three 2D lookups with their Combine XYZ, the φo node pick, the alias draw, the tilt rotation).
+Constants that depend only on the tables live in the images (the C image holds the tilt's affine terms: two Math
+nodes)."""
 from __future__ import annotations
 
 import math
@@ -51,6 +57,9 @@ TABLE_GLOSSY = "scratch_table_glossy"
 TABLE_ROWS = "scratch_table_rows"
 #: custom property "<twin>/<kind>/<k>" on the node holding layer k's rotation / offset constants
 LAYER_CONST = "scratch_layer_const"
+#: custom property (Θ_k, ξx, ξy) of eq. 7 on a layer's Voronoi node (``layer_feature_distance``): ``set_layer_size``
+#: rebuilds its texture mapping for a new scratch length / width from it
+LAYER_XFORM = "scratch_layer_xform"
 #: layers are culled (the paper's α_k < ALPHA_CULL = 1e-6, §6.1, ``precompute.scratch.layers.ALPHA_CULL``) below this
 #: density: the mean coverage of [F1 <= d] is c̄(d) = π d² for small d (one feature point per unit cell; exact as
 #: d -> 0, 0.2 % high at d = 0.1 against the quadrature of ``precompute.scratch.layers.coverage_table``), so c̄(d) < 1e-6 for
@@ -62,8 +71,9 @@ TABLE_IMAGE_PREFIX = "Scratch table "
 
 def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
     """Write new layer rotations Θ_k and offsets ξ_k (eq. 7) into the nodes ``build`` tagged for ``twin``
-    (same layer count): each layer's Mapping node (``layer_coordinates``), its offset node when the scratch
-    size is a socket, and the layer-pick constants; returns how many nodes were written."""
+    (same layer count): each layer's Voronoi texture mapping (``layer_feature_distance``; the Mapping node and
+    its offset nodes of materials built before it), the layer-pick constants and a race's parameters image;
+    returns how many nodes were written."""
     n = 0
     race = {}
     for node in tree_nodes(tree):
@@ -81,7 +91,10 @@ def set_layer_constants(tree, theta_k, xi_k, twin: str = "svm") -> int:
                 if "images" not in race:
                     race["images"] = race_images(theta_k, xi_k)
                 node.image = race["images"][1 if kind == "race_rot" else 2]
-            elif kind == "map":
+            elif kind == "vor":
+                node[LAYER_XFORM] = (theta, xi[0], xi[1])
+                set_texture_mapping(node, theta, xi, *tuple(node.texture_mapping.scale)[:2])
+            elif kind == "map":   # materials built before layer_feature_distance
                 _set_mapping(node, theta, xi)
             elif kind in _LOC_FACTORS:
                 node.inputs[1].default_value = _LOC_FACTORS[kind](math.cos(theta), math.sin(theta), xi)
@@ -217,7 +230,10 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
     h_jit = g.math("MULTIPLY_ADD", noise(43.0), 2.0, -1.0) if jittered else None
 
     if twin == "svm" and not cost_off & 16 and races(lobe_data, layers):   # the Cycles twin: layers in a nested Mix Shader race (``_layer_race``)
-        h_frac = noise(17.0)
+        # the aim inside a table bin: the residual of the race's row pick, fract(h_layer P) (uniform, independent of
+        # the row floor(h_layer P) and so of the picked layer; 13 bits at P = 2048) instead of a second hash
+        n_orders = float(len(race_orders(layers.n_layers)))
+        h_frac = g.math("FRACT", g.math("MULTIPLY", h_layer, n_orders))
         race_args = dict(geo=geo, N=N, wo=wo, t=t, uv=uvn.outputs["UV"], h_slice=h_slice, h_layer=h_layer,
                          h_lobe=h_lobe, h_frac=h_frac)
         return _cull_gate(g, _layer_race(g, lobe_data, name, layers, theta_k, xi_k, tint, base_socket, controls,
@@ -227,17 +243,14 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         alpha_sum = 1.0
     else:
         uv = uvn.outputs["UV"]
-        size = (float(layers.length), float(layers.width), 1.0)
-        lw = None
-        if "length" in controls or "width" in controls:   # live sockets: Scale = (l, w, 1) from the controls
-            lw = (controls.get("length", size[0]), controls.get("width", size[1]))
-            size = g.combine(lw[0], lw[1], 1.0)
+        # l and w are the built values; live edits rewrite the nodes' texture mappings (``set_layer_size``)
+        size = (float(layers.length), float(layers.width))
         dens = controls.get("density", None)
         threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
         acc, accs = None, []
         for k in range(layers.n_layers):
-            y = layer_coordinates(g, uv, theta_k[k], size, xi_k[k], tag=f"{twin}/%s/{k}", lw=lw)
-            a = g.math("LESS_THAN", _feature_distance(g, y, cost_off), threshold)  # [F1]_d, eq. 7
+            f1 = layer_feature_distance(g, uv, theta_k[k], xi_k[k], size, tag=f"{twin}/%s/{k}", cost_off=cost_off)
+            a = g.math("LESS_THAN", f1, threshold)  # [F1]_d, eq. 7
             acc = a if acc is None else g.math("ADD", acc, a)
             accs.append(acc)
         alpha_sum = acc
@@ -308,11 +321,11 @@ def race_visits(n_layers: int, density: float) -> float:
 def races(lobe_data: dict, layers) -> bool:
     """True if ``build`` lays the layers out as a race (``_layer_race``) on the Cycles twin: table lobes, more
     than one layer and a race that visits fewer than half the layers (``race_visits``; fig1c 16 layers at
-    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  Since a race position
-    reads its layer with one lookup (``race_params_image``) a visit costs about what a layer of the picked-layer
-    graph costs with its pick (callgrind, bench/scratch_svm_profile: fig1c 4 layers 13,401 instructions per sample
-    as a race, 13,590 picked, 1.4 % apart); the half-the-layers rule stays because a race material also syncs a lobe
-    per position and an EEVEE twin (scene sync, bench/scratch_scale).
+    d = 0.3: 3.7 visits, race; 4 layers: 2.9, not; 32 sparse layers at d = 0.05: 29, not).  A race position reads its
+    layer with one lookup (``race_params_image``) and maps it with a Mapping node (its rotation is per sample), where
+    the picked-layer graph's layers are texture-mapped Voronoi nodes: fig1c at 4 layers costs 13,263 instructions per
+    sample as a race, 12,438 picked (callgrind, bench/scratch_svm_profile); a race material also syncs a lobe per
+    position and an EEVEE twin (scene sync, bench/scratch_scale): hence the half-the-layers rule.
     The EEVEE output then takes its own twin (``build(twin="eevee")``, every layer at once)."""
     if not RACE_LAYERS or "cdf" not in lobe_data or layers is None or layers.n_layers < 2:
         return False
@@ -463,15 +476,17 @@ def race_group(lobe_data, name, theta_k, xi_k, n, tint, cost_off, twin) -> bpy.t
                                                           inp["h_layer"]))
     par[LAYER_CONST] = f"{twin}/race_par/0"
     c = par.outputs["Color"]
+    theta = gg.separate(c)[2]
     m = gg.node("ShaderNodeMapping", vector_type="TEXTURE")
     gg._set(m.inputs["Vector"], inp["UV"])
     gg._set(m.inputs["Rotation"], gg.vmath("MULTIPLY", c, (0.0, 0.0, 1.0)))   # (0, 0, Θ)
     gg._set(m.inputs["Scale"], inp["Size"])
-    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read
+    # eq. 7: S^-1 R(Θ) (u, v) + ξ; z gets Θ too, which the 2D Voronoi does not read.  (A Z-axis Vector Rotate, a divide
+    # by (l, w, 1) and the offset instead: 16,010 instructions per sample at fig1c's 16 layers, 170 more; callgrind)
     y = gg.vmath("ADD", m.outputs["Vector"], c)
     alpha = gg.math("LESS_THAN", _feature_distance(gg, y, cost_off), inp["Threshold"])  # [F1]_d, eq. 7
     tint_in = inp["Tint"] if isinstance(tint, bpy.types.NodeSocket) else tint
-    lobe = _frame_lobe(gg, lobe_data, name, gg.separate(c)[2], inp["Normal"], inp["Incoming"], inp["Tangent"],
+    lobe = _frame_lobe(gg, lobe_data, name, theta, inp["Normal"], inp["Incoming"], inp["Tangent"],
                        inp["h_slice"], inp["h_lobe"], inp["h_frac"], tint_in, cost_off)
     mix = gg.node("ShaderNodeMixShader")
     gg._set(mix.inputs["Fac"], alpha)
@@ -506,7 +521,7 @@ def _frame_lobe(g, lobe_data, name, theta, N, wo, t, h_slice, h_lobe, h_frac, ti
 
 
 #: Location of a layer's Mapping node when the size (l, w) is a socket: L = -R_z(Θ) (l ξx, w ξy) =
-#: (l a + w b, l c + w d) with these factors of (cos Θ, sin Θ, ξ) (``layer_coordinates``)
+#: (l a + w b, l c + w d) with these factors of (cos Θ, sin Θ, ξ) (materials built before ``layer_feature_distance``)
 _LOC_FACTORS = {"la": lambda c, s_, xi: -c * float(xi[0]), "lb": lambda c, s_, xi: s_ * float(xi[1]),
                 "lc": lambda c, s_, xi: -s_ * float(xi[0]), "ld": lambda c, s_, xi: -c * float(xi[1])}
 
@@ -523,38 +538,76 @@ def _feature_distance(g, y, cost_off: int = 0) -> bpy.types.NodeSocket:
     return vor.outputs["Distance"]
 
 
-def layer_coordinates(g, uv, theta: float, size, xi, tag: str | None = None, lw=None) -> bpy.types.NodeSocket:
-    """Eq. 7: y = diag(l, w)^-1 R(Θ) (u, v) + ξ (rotation first, see osl/scratch_svbrdf.osl),
-    R(Θ) = [[cos Θ, sin Θ], [-sin Θ, cos Θ]], in one Mapping node.
-    Cycles' Texture mapping computes S^-1 R_z(r)^T (p - L), so r = Θ (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and
-    L = -R_z(Θ) S ξ.  When ``size`` is a socket (live controls), ``lw`` = (l, w) (sockets or numbers) and L is
-    computed from them by Math nodes that depend on the controls only: Cycles folds them into a constant at
-    sync, so the layer still costs one Mapping node per shading point (an Add node after the mapping, as
-    before, cost 0.035x the baseline per layer).  ``tag`` ("<twin>/%s/<k>") marks the nodes for
-    ``set_layer_constants``."""
-    m = g.node("ShaderNodeMapping", vector_type="TEXTURE")
-    g._set(m.inputs["Vector"], uv)
-    g._set(m.inputs["Scale"], size)
+def layer_feature_distance(g, uv, theta: float, xi, size, tag: str | None = None,
+                           cost_off: int = 0) -> bpy.types.NodeSocket:
+    """F1 of layer k at the UV point (eq. 7): the distance from y = diag(l, w)^-1 R(Θ) (u, v) + ξ to the nearest
+    hashed feature point (Cycles' 2D Voronoi, randomness 1: the OSL path's placement; rotation first, see
+    osl/scratch_svbrdf.osl); ``size`` = (l, w) in UV units, Θ in radians.
+
+    y is the Voronoi node's own texture mapping (``set_texture_mapping``): Cycles folds it into one 3x4 matrix at
+    sync, a matrix-vector product per shading point, where a Mapping node builds its matrix from the Euler
+    rotation every sample (callgrind, bench/scratch_svm_profile: ~350 instructions per layer and shading point
+    for the Mapping node, ~60 for the texture mapping).  l and w are therefore compiled values: live edits and
+    keyframes of the panel's Length / Width rewrite the mapping (``set_layer_size``, called by
+    ``scratch_addon.live``).  ``tag`` ("<twin>/%s/<k>") marks the node for ``set_layer_constants``;
+    ``cost_off & 1`` (bench only): the distance to the cell centre (an image, the same mapping) instead."""
+    if cost_off & 1:
+        node = g.node("ShaderNodeTexImage", image=_cell_distance_image(), interpolation="Closest",
+                      extension="REPEAT")
+        out = node.outputs["Alpha"]
+    else:
+        node = g.node("ShaderNodeTexVoronoi", voronoi_dimensions="2D", feature="F1", distance="EUCLIDEAN")
+        node.inputs["Scale"].default_value = 1.0
+        node.inputs["Randomness"].default_value = 1.0
+        out = node.outputs["Distance"]
+    g._set(node.inputs["Vector"], uv)
+    node[LAYER_XFORM] = (float(theta), float(xi[0]), float(xi[1]))
     if tag:
-        m[LAYER_CONST] = tag % "map"
-    _set_mapping(m, theta, xi)
-    if not isinstance(size, bpy.types.NodeSocket):
-        return m.outputs["Vector"]
+        node[LAYER_CONST] = tag % "vor"
+    set_texture_mapping(node, theta, xi, *size)
+    return out
+
+
+def set_texture_mapping(node, theta: float, xi, length: float, width: float) -> None:
+    """The texture mapping of a layer's texture node for eq. 7: y = diag(l, w)^-1 R(Θ) (u, v) + ξ.
+    Cycles' Texture-type mapping applies (T R_z(r) S)^-1, i.e. y = S^-1 R_z(r)^T (p - L), so r = Θ
+    (R_z(Θ)^T = R(Θ)), S = (l, w, 1) and L = -R_z(Θ) S ξ."""
+    tm = node.texture_mapping
     c, s_ = math.cos(theta), math.sin(theta)
-    l, w = lw
-    loc = []
-    for kx, ky in (("la", "lb"), ("lc", "ld")):      # l * kx + w * ky
-        mw = g.math("MULTIPLY", w, _LOC_FACTORS[ky](c, s_, xi))
-        ml = g.math("MULTIPLY_ADD", l, _LOC_FACTORS[kx](c, s_, xi), mw)
-        if tag:
-            mw.node[LAYER_CONST], ml.node[LAYER_CONST] = tag % ky, tag % kx
-        loc.append(ml)
-    g._set(m.inputs["Location"], g.combine(loc[0], loc[1], 0.0))
-    return m.outputs["Vector"]
+    sx, sy = float(length) * float(xi[0]), float(width) * float(xi[1])
+    tm.vector_type = "TEXTURE"
+    tm.rotation = (0.0, 0.0, float(theta))
+    tm.scale = (float(length), float(width), 1.0)
+    tm.translation = (-(c * sx - s_ * sy), -(s_ * sx + c * sy), 0.0)
+
+
+def set_layer_size(tree, length: float, width: float) -> int:
+    """Write the scratch length l and width w (UV units, eq. 7) into every layer's texture mapping
+    (``layer_feature_distance``) in ``tree`` (both twins); returns how many nodes changed."""
+    n = 0
+    for node in tree_nodes(tree):
+        xform = node.get(LAYER_XFORM)
+        if xform is None:
+            continue
+        old = tuple(node.texture_mapping.scale)[:2]
+        if old != (float(np.float32(length)), float(np.float32(width))):
+            set_texture_mapping(node, xform[0], xform[1:], length, width)
+            n += 1
+    return n
+
+
+def _cell_distance_image() -> bpy.types.Image:
+    """Bench only (``cost_off & 1``): |fract(y) - 1/2|, the distance to the cell centre, in the alpha of a tiling
+    image (64 x 64 texels): a stand-in for the layer Voronoi with the same mean coverage π d²."""
+    x = (np.arange(64) + 0.5) / 64 - 0.5
+    arr = np.zeros((64, 64, 4))
+    arr[..., 3] = np.hypot(x[None, :], x[:, None])
+    return _data_image("Scratch bench cell distance", arr)
 
 
 def _set_mapping(m, theta: float, xi) -> None:
-    """Rotation and Location of a ``layer_coordinates`` Mapping node for layer rotation Θ and offset ξ."""
+    """Rotation and Location of a layer's Mapping node (materials built before ``layer_feature_distance``) for
+    layer rotation Θ and offset ξ."""
     m.inputs["Rotation"].default_value = (0.0, 0.0, float(theta))
     if m.inputs["Scale"].is_linked:   # ξ is added after the mapping
         m.inputs["Location"].default_value = (0.0, 0.0, 0.0)

@@ -33,7 +33,8 @@ Animation: keyframed socket-valued settings are evaluated into their sockets bef
 (``frame_change_pre``: an animation render syncs the new frame right after) and keyframed or driven ones
 again after it (``frame_change_post``), so a keyframed density renders differently on two frames.  A .blend
 rendered on a machine *without* the add-on keeps the sockets' saved values: keyframe the "Scratch
-Controls" node's sockets themselves for a farm (they animate everywhere).
+Controls" node's sockets themselves for a farm (they animate everywhere, except Length and Width on the SVM
+twins: the layer Voronoi's texture mapping holds them, written by ``write_socket``; keyframe the panel values).
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ import traceback
 
 import bpy
 
-from ..node_groups import scratch_controls
+from ..node_groups import scratch_controls, scratch_svm
 from . import scratch_material
 
 DEBOUNCE_S = 0.15
@@ -152,6 +153,9 @@ def write_socket(material, prop: str, value=None) -> bool:
     value = getattr(settings, prop) if value is None else value
     value = value if isinstance(value, (int, float)) else tuple(value)
     scratch_controls.set_value(target, value)
+    if prop in ("length", "width"):   # the SVM twins' layer texture mappings (compiled l, w: scratch_svm.set_layer_size)
+        scratch_svm.set_layer_size(material.node_tree, node.inputs["Length"].default_value,
+                                   node.inputs["Width"].default_value)
     if sock.osl:
         script = scratch_material.scratch_script(material)
         if script is not None and sock.osl in script.inputs:
