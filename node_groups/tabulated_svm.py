@@ -60,6 +60,7 @@ def table_hash(tb: tbm.ClosureTables) -> str:
     for a in (tb.F, tb.cdf):
         h.update(np.ascontiguousarray(a, np.float32).tobytes())
     h.update(repr((tb.res, tb.iso, tb.n_o, float(tb.alpha), tb.half, float(tb.extent), VERSION)).encode())
+    h.update(np.asarray(getattr(tb, "kd", np.zeros(3)), np.float32).tobytes())       # the Diffuse floor
     return h.hexdigest()[:12]
 
 
@@ -73,7 +74,7 @@ def images(tb: tbm.ClosureTables) -> dict:
 def ensure(tb: tbm.ClosureTables, _break: str | None = None) -> bpy.types.ShaderNodeTree:
     """The node group of table ``tb`` (input "Tint", output "BSDF"), built once per table content.
     ``_break`` (tests only): "view" picks the ωo node of the opposite view, "alias" skips the alias step
-    (bin j straight from h): both must fail the render tests."""
+    (bin j straight from h), "floor" counts the Diffuse floor twice: each must fail the render tests."""
     if not fits(tb):
         raise ValueError(f"table: res {tb.res}, {tb.n_o} view nodes exceed the {MAX_IMAGE_SIDE}-texel image limit")
     name = GROUP_PREFIX + table_hash(tb) + (f" broken {_break}" if _break else "")
@@ -202,6 +203,18 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     g._set(glossy.inputs["Color"], colour)
     g._set(glossy.inputs["Roughness"], float(glossy_node_params(tb.alpha, tb.alpha)[0]))
     g._set(glossy.inputs["Normal"], m)
-    ng.links.new(glossy.outputs["BSDF"], gout.inputs["BSDF"])
+    ng.links.new(_floor(g, tb, gin.outputs["Tint"], glossy.outputs["BSDF"], 2.0 if _break == "floor" else 1.0),
+                 gout.inputs["BSDF"])
+
+
+def _floor(g, tb: tbm.ClosureTables, tint, bsdf, scale: float = 1.0):
+    """The smooth floor (``tabulated_brdf.floor_split``): Diffuse BSDF of colour kd x Tint added to the table's
+    Glossy ``bsdf`` (light sampling sees the lamp at every sample); ``bsdf`` itself when kd = 0."""
+    kd = np.asarray(getattr(tb, "kd", np.zeros(3)), np.float64) * scale
+    if not kd.any():
+        return bsdf
+    diff = g.node("ShaderNodeBsdfDiffuse")
+    g._set(diff.inputs["Color"], g.vmath("MULTIPLY", tint, tuple(float(c) for c in kd)))
+    return g.add_shader(diff.outputs["BSDF"], bsdf)
 
 
