@@ -11,6 +11,8 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
   row and column drawn independently), which gives each tap its interpolation weight;
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
+- the smooth floor (``tabulated_brdf.floor_split``): a Diffuse BSDF of colour kd x Tint added to the Glossy
+  (``_floor``), the images holding the residual, as the OSL shader's FLOOR;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
   interpolation of the OSL shader, never bleeding into a neighbour tile).
 

@@ -61,6 +61,17 @@ light are sampled as for any glossy material.  Per-sample weights are f cos / p:
 ∝ (cell average of the bilinear interpolant of row o's channel mean) x (∫_cell cos θ dω), mixed with
 a defensive fraction ``DEFENSIVE`` ∝ solid angle, so weights stay near the directional albedo.
 
+**The smooth floor** (``floor_split``, on by default).  One narrow lobe per sample sees a small lamp only when
+the drawn bin's lobe covers it: for the smooth part of a BRDF (a MERL material's diffuse term) a point lamp
+then turns into fireflies (a Lambertian MERL file under the startup scene's point lamp: 93-112 % relative noise
+of the frame mean at 8 spp).  So f = kd/π + r with the largest constant kd (RGB) that keeps r >= 0 at every node
+(bilinear interpolation then keeps r >= 0 everywhere): kd renders as a Diffuse closure (next-event estimation
+sees the lamp at every sample), and the closure above samples and weights r only (``F``, ``cdf`` and the
+weights W are r's; what renders is kd/π + r).  Measured (``tests/tables/test_tabulated_floor``): the Lambertian
+file's noise drops to 0.2 %, that of a Diffuse BSDF; the floor takes 100 % of a Lambertian, 18-19 % of a
+GGX (α 0.2) + Lambert MERL file (its GGX tails included), 0 of a bi-scale pyramid of diffuse facets (f = 0
+where ωi and ωo see disjoint facets).
+
 ``closure_tables`` makes the arrays compiled into ``osl/tabulated_brdf.osl``; ``sample`` is the
 numpy twin of the shader (same arrays, same arithmetic); ``pdf`` the density of step 3 marginalised
 over the ωo node (the chi-square oracle).  Units: directions are unit vectors in the surface frame

@@ -134,7 +134,9 @@ def test_fill_missing_keeps_measured_bins():
     t[5, 59, 7] = (0.3, 0.4, 0.5)
     t[3, 10, 2] = (0.0, 0.1, 0.0)                       # one channel measured: kept as is
     g = merl.fill_missing(t)
-    assert np.all(g > 0) or np.array_equal(g[3, 10, 2], [0.0, 0.1, 0.0])
+    changed = np.any(g != t, -1)
+    assert changed.any() and np.all(t[changed] <= 0)
+    assert np.all(np.any(g > 0, -1))
     np.testing.assert_array_equal(g[3, 10, 2], [0.0, 0.1, 0.0])
     np.testing.assert_array_equal(g[5, 89, 7], [0.3, 0.4, 0.5])
     np.testing.assert_array_equal(g[6, 89, 7], [0.2, 0.2, 0.2])
@@ -174,9 +176,9 @@ def _broken_osl(tm, bpy, brdf, name):
 def test_lambert_merl_under_a_point_light_is_as_quiet_as_diffuse(addon, scene, render_dir, osl, capsys):
     """A Lambertian MERL file (0.5/π everywhere) imported with ``material_from_merl`` under the default scene's
     point lamp, 48 x 32 px, 8 spp, seeds 0-3, relative to a Diffuse BSDF of colour 0.5 rendered at 64 spp:
-    the frame means' relative std over seeds is below 2 % and their mean is within 2 % of the Diffuse (noise
-    of the Diffuse itself at 8 spp: printed).  Before the floor (``floor=False``, the same scene): relative std
-    above 30 % (the lead measured ~70 %).  The floor counted twice (SVM: ``tabulated_svm`` ``_break="floor"``;
+    the frame means' relative std over seeds is below 2 % (measured 0.20 % SVM, 0.22 % OSL; the Diffuse BSDF
+    itself 0.20 %) and their mean is within 2 % of the Diffuse (measured -0.1..+0.4 %).  Before the floor
+    (``floor=False``, the same scene): relative std above 30 % (measured 112 % SVM, 93 % OSL).  The floor counted twice (SVM: ``tabulated_svm`` ``_break="floor"``;
     OSL: KD doubled) renders 2x and fails."""
     import bpy
 
