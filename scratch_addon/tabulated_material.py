@@ -67,11 +67,11 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom property
     ``tabulated_svm``: "table" or "fit" (what Cycles SVM renders).  ``floor``: render the BRDF's smooth part
     kd/π as a Diffuse closure and only the residual through the table closure (``tabulated_brdf.floor_split``;
-    OSL: one kd per ωo node, SVM: one constant kd, custom property ``tabulated_floor``).
+    custom property ``tabulated_floor``: kd).
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
-    src = tabulated_osl.generate(brdf, alpha=alpha, floor="node" if floor else False)   # ValueError: nothing created
+    src = tabulated_osl.generate(brdf, alpha=alpha, floor=floor)      # ValueError before anything is created
     tables = tabulated_brdf.closure_tables(brdf, alpha, floor)
     use_table = bool(svm_table) and tabulated_svm.fits(tables)
     twin = None if svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
