@@ -10,13 +10,14 @@ from ..precompute.tables.tabulated_brdf import MAX_FLOATS, VIEW_GUIDE_BINS, clos
 from . import const_array, specialise
 
 
-def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> str:
+def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, floor: bool = True) -> str:
     """OSL source of the closure for ``brdf`` (``TabulatedBRDF``): ``tabulated_brdf.osl`` with its
     tables, ISO/RES/NO/ALPHA defined.  Inputs ``Tangent`` (a Tangent node, UV map), ``Tint``;
-    output ``BSDF``.  ``alpha``: the closure's GGX alpha (default ``default_alpha(res)``)."""
+    output ``BSDF``.  ``alpha``: the closure's GGX alpha (default ``default_alpha(res)``); ``floor``: split off
+    the smooth Diffuse floor (``tabulated_brdf.floor_split``, FLOOR / KD_* defined when kd > 0)."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"name: expected an OSL identifier, got {name!r}")
-    tb = closure_tables(brdf, alpha)
+    tb = closure_tables(brdf, alpha, floor)
     D = tb.res * tb.res
     tables = (const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())
               + const_array("GUIDE", tb.guide.ravel(), "int"))
@@ -25,6 +26,8 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None) -> 
         tables += (const_array("VA", tb.view_a) + const_array("VB", tb.view_b)
                    + const_array("VGA", view_guide(tb.view_a), "int") + const_array("VGB", view_guide(tb.view_b), "int"))
         view = dict(VIEW_GRID=True, NA=len(tb.view_a), NB=len(tb.view_b), VGBINS=VIEW_GUIDE_BINS)
+    if tb.kd.any():                 # the smooth Diffuse floor (tabulated_brdf.floor_split)
+        view.update(FLOOR=True, KD_R=float(tb.kd[0]), KD_G=float(tb.kd[1]), KD_B=float(tb.kd[2]))
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
                            ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent), **view),

@@ -21,10 +21,13 @@ from . import panels, tabulated_material, transaction
 from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, report_error
 
 
-def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None):
+def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None,
+                       floor: bool = True):
     """Material of the MERL BRDF in ``path`` (``res`` x ``res`` ωi cells and ``n_theta`` view angles on
-    the closure's isotropic grid).  ValueError for unreadable / non-MERL files and out-of-range sizes;
-    nothing is created then."""
+    the closure's isotropic grid; missing bins take their measured neighbour's value, ``merl.fill_missing``).
+    ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure, only the rest through the table
+    closure (``tabulated_brdf.floor_split``: a point lamp then lights the diffuse part at every sample).
+    ValueError for unreadable / non-MERL files and out-of-range sizes; nothing is created then."""
     validation.check_range("res", res, 4, 48)
     validation.check_range("n_theta", n_theta, 4, 90)
     step = progress or (lambda f: None)
@@ -35,7 +38,7 @@ def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: in
     step(0.8)
     name = name or os.path.splitext(os.path.basename(os.fspath(path)))[0]
     with transaction.new_datablocks():
-        mat = tabulated_material.make_tabulated_material(brdf, name, kind="merl")
+        mat = tabulated_material.make_tabulated_material(brdf, name, kind="merl", floor=floor)
         mat["merl_source"] = os.path.basename(os.fspath(path))
     step(1.0)
     return mat

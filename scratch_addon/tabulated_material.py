@@ -59,18 +59,20 @@ def tabulated_script(mat, source: str):
 
 
 def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | None = None, svm_twin=None,
-                            kind: str = "tabulated", svm_table: bool = True) -> bpy.types.Material:
+                            kind: str = "tabulated", svm_table: bool = True, floor: bool = True) -> bpy.types.Material:
     """Material rendering ``brdf`` (``TabulatedBRDF``) exactly in Cycles (OSL: ``osl/tabulated_brdf.osl``;
     SVM / GPU: the same closure as nodes, ``node_groups.tabulated_svm``) and through a fitted node twin in
     EEVEE.  ``svm_twin(tree) -> socket`` builds that twin (default: ``glossy_twin``); it also renders Cycles
     SVM when ``svm_table`` is False or the table exceeds the image limit (``tabulated_svm.fits``).
     ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom property
-    ``tabulated_svm``: "table" or "fit" (what Cycles SVM renders).
+    ``tabulated_svm``: "table" or "fit" (what Cycles SVM renders).  ``floor``: render the BRDF's smooth part
+    kd/π as a Diffuse closure and only the residual through the table closure (``tabulated_brdf.floor_split``;
+    custom property ``tabulated_floor``: kd).
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
-    src = tabulated_osl.generate(brdf, alpha=alpha)      # ValueError before anything is created
-    tables = tabulated_brdf.closure_tables(brdf, alpha)
+    src = tabulated_osl.generate(brdf, alpha=alpha, floor=floor)      # ValueError before anything is created
+    tables = tabulated_brdf.closure_tables(brdf, alpha, floor)
     use_table = bool(svm_table) and tabulated_svm.fits(tables)
     twin = None if svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
     n_groups, n_images = set(bpy.data.node_groups), set(bpy.data.images)
@@ -93,6 +95,7 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     mat["scratch_addon_kind"] = kind
     mat["tabulated_res"] = int(brdf.res)
     mat["tabulated_iso"] = bool(brdf.iso)
+    mat["tabulated_floor"] = [float(c) for c in tables.kd]
     if getattr(brdf, "half", False):
         mat["tabulated_half_extent"] = float(brdf.extent)      # a half-vector table zoomed to its lobe
     if twin is not None:

@@ -22,7 +22,7 @@ import numpy as np
 from .. import validation
 from .tabulated_brdf import TabulatedBRDF
 
-__all__ = ["read_merl", "write_merl", "half_diff", "lookup", "bin_centres", "tabulate", "to_tabulated",
+__all__ = ["read_merl", "write_merl", "half_diff", "lookup", "bin_centres", "tabulate", "to_tabulated", "fill_missing",
            "SHAPE", "SCALE"]
 
 SHAPE = (90, 90, 180)
@@ -126,7 +126,26 @@ def tabulate(f) -> np.ndarray:
     return out.reshape(*SHAPE, 3)
 
 
-def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int | None = None, half: bool = True) -> TabulatedBRDF:
+def fill_missing(table) -> np.ndarray:
+    """``table`` (90, 90, 180, 3) with its missing bins (all channels <= 0: negative in the file, 0 after
+    ``read_merl``) given the value of the nearest measured bin at smaller θd (same θh, φd), else at smaller θh.
+    MERL files mark every bin whose centre pair lies below the horizon as missing (25 % of the bins of a file
+    written by ``tabulate``), yet nearest-bin lookups of pairs above the horizon land in them: left at 0 they
+    darken a rim at grazing angles and hide the BRDF's smooth floor (``tabulated_brdf.floor_split``)."""
+    t = np.array(table, np.float64)
+    for axis in (1, 0):                                     # θd first, then θh for columns missing from θd = 0
+        ok = np.any(t > 0, axis=-1)
+        shape = [1] * 3
+        shape[axis] = SHAPE[axis]
+        idx = np.where(ok, np.arange(SHAPE[axis]).reshape(shape), 0)
+        idx = np.maximum.accumulate(idx, axis=axis)         # last measured index at or below
+        filled = np.take_along_axis(t, idx[..., None], axis=axis)
+        t = np.where(ok[..., None], t, filled)
+    return t
+
+
+def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int | None = None, half: bool = True,
+                 fill: bool = True) -> TabulatedBRDF:
     """The MERL BRDF on the isotropic grid of the tabulated closure: ``res`` x ``res`` cells, each the average
     of ``sub``² nearest-bin lookups (default 4 for ``half``, else 2); ``n_theta`` view angles.
 
@@ -135,10 +154,13 @@ def to_tabulated(table, res: int = 32, n_theta: int = 32, sub: int | None = None
     Cycles' GGX (x 0.8, + 0.02 Lambert), iso 32² x 32, rendered energy (the sampler's mean weight) vs the
     analytic albedo at θo = 0..75°: half layout -0.2..-0.4 % (α 0.2), -0.6..-0.8 % (0.08), -1.7..-2.2 % (0.04),
     -2.7..-3.2 % (0.02); the ωi layout (``half=False``) +0.4..-0.4 %, +1.2..-2.2 %, +2.4..-4.3 %, +7.2..-8.9 %
-    (sharp lobes gain or lose energy depending on the view)."""
+    (sharp lobes gain or lose energy depending on the view).  ``fill`` (default): missing bins first take the
+    nearest measured value (``fill_missing``)."""
     t = np.asarray(table, np.float64)
     if t.shape != (*SHAPE, 3):
         raise ValueError(f"table: expected shape {(*SHAPE, 3)}, got {t.shape}")
     sub = (4 if half else 2) if sub is None else sub
+    if fill:                                               # missing bins take their measured neighbour's value
+        t = fill_missing(t)
     return TabulatedBRDF.from_function(lambda wi, wo: lookup(t, wi, wo), res, iso=True, n_theta=n_theta, sub=sub,
                                        info={"source": "merl"}, half=bool(half), extent=1.0)

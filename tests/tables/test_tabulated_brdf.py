@@ -112,15 +112,17 @@ def test_weight_is_eval_cos_over_pdf(tables, kind):
     np.testing.assert_allclose(np.linalg.norm(m, axis=1), 1, rtol=1e-12)
     np.testing.assert_allclose(np.sum(m * wi, 1), np.sum(m * WO, 1), atol=1e-12)   # m mirrors ωo into ωi
     A = tb.lobe_albedo(np.sum(WO * m, 1), T.alpha)
-    np.testing.assert_allclose(W, B.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-5, atol=1e-9)
+    kd, R = tb.floor_split(B)                               # the closure renders the residual r = f - kd/π
+    np.testing.assert_allclose(T.kd, kd)
+    np.testing.assert_allclose(W, R.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-5, atol=1e-9)
 
 
 @pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])
 def test_furnace_mean_weight_is_albedo(tables, kind):
-    """Mean of W · A over samples (what a white furnace renders, A the closure albedo) equals the
-    directional albedo ∫ eval cos dωi of the table at off-node views.  100k samples; the relative
-    standard error is printed by the estimate itself (< 0.3 %); tolerance 4 standard errors + 0.3 %
-    for the albedo's midpoint rule."""
+    """kd (the Diffuse floor's albedo) plus the mean of W · A over samples (what a white furnace renders,
+    A the closure albedo) equals the directional albedo ∫ eval cos dωi of the table at off-node views.
+    100k samples; the relative standard error is printed by the estimate itself (< 0.3 %); tolerance
+    4 standard errors + 0.3 % for the albedo's midpoint rule."""
     B = tables[kind]
     T = tb.closure_tables(B)
     for wo in _unit(np.array([[0.3, 0.1, 0.9], [-0.7, 0.4, 0.4], [0.05, -0.9, 0.3]])):
@@ -130,7 +132,7 @@ def test_furnace_mean_weight_is_albedo(tables, kind):
         est = W * tb.lobe_albedo(np.sum(WO * m, 1), T.alpha)[:, None]
         se = est.std(0) / np.sqrt(n)
         ref = B.albedo(wo[None], 128, 256)[0]
-        assert np.all(np.abs(est.mean(0) - ref) < 4 * se + 0.003 * ref), (wo, est.mean(0), ref, se)
+        assert np.all(np.abs(T.kd + est.mean(0) - ref) < 4 * se + 0.003 * ref), (wo, T.kd, est.mean(0), ref, se)
 
 
 @pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])
@@ -156,14 +158,20 @@ def test_guide_table_pick_is_the_inverse_cdf(tables, kind):
 
 
 def test_lambert_table_is_exact():
-    """A Lambertian table: eval = ρ/π everywhere, albedo ρ; per-sample weights W/ρ have a relative
-    std below 0.5 (measured 0.40 at res 6: the proposal is the cell-averaged cos, so W/ρ varies only
-    inside a cell) and stay below 5."""
+    """A Lambertian table: eval = ρ/π everywhere, albedo ρ; the floor takes all of it (kd = ρ, the residual
+    closure carries nothing); without the floor, per-sample weights W/ρ have a relative std below 0.5
+    (measured 0.40 at res 6: the proposal is the cell-averaged cos, so W/ρ varies only inside a cell) and
+    stay below 5."""
     rho = np.array([0.8, 0.5, 0.2])
     B = tb.TabulatedBRDF.from_function(lambda wi, wo: np.broadcast_to(rho / np.pi, (len(wi), 3)), 6, iso=True, n_theta=4)
     wo = _unit([[0.2, 0.3, 0.9]])
     np.testing.assert_allclose(B.albedo(wo, 256, 64)[0], rho, rtol=1e-3)
     T = tb.closure_tables(B)
+    np.testing.assert_allclose(T.kd, rho, rtol=1e-12)
+    _, m, W, _ = tb.sample(T, np.repeat(wo, 5000, 0), np.random.default_rng(0).random((5000, 4)))
+    assert np.abs(W).max() < 1e-6 * rho.max()
+    T = tb.closure_tables(B, floor=False)
+    assert not T.kd.any()
     _, m, W, _ = tb.sample(T, np.repeat(wo, 5000, 0), np.random.default_rng(0).random((5000, 4)))
     r = W / rho
     assert r.std() / r.mean() < 0.5 and r.max() < 5
