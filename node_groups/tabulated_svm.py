@@ -8,7 +8,11 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 
 - random numbers: two 4D White Noise colours of (P, ωo·k) (P jitters per sample, as OSL's hashnoise);
 - the ωo node: floor(x + h) per axis (isotropic: x the continuous θo index; anisotropic: the hemi-octahedral
-  row and column drawn independently), which gives each tap its interpolation weight;
+  row and column drawn independently; view grids: x(a), x(b) of the projected view angles a = atan2(ωx, ωz),
+  b = atan2(ωy, ωz) from one Linear lookup each of a 4096-texel guide of the piecewise-linear node index
+  (``tabulated_brdf.svm_view_guide``: exact at the texels and the end nodes, off by <= Δ/4 x the slope jump in
+  the texel interval around an interior node, 2.7e-3 of a weight for nodes 0.05 rad apart, measured 1.6e-4 on
+  the test grid), which gives each tap its interpolation weight (``view_taps``);
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
@@ -47,11 +51,8 @@ MAX_IMAGE_SIDE = 16384
 
 def fits(tb: tbm.ClosureTables) -> bool:
     """True if the graph can render the table: its images stay within ``MAX_IMAGE_SIDE`` (the alias rows are
-    res² wide, the F atlas n_o (res + 2) tall) and its ωo nodes are the default ones (uniform θo / the
-    hemi-octahedral grid: the graph's view-node pick); a table on a view grid (``view_a`` / ``view_b``, the
-    bi-scale bake's default) keeps the fitted twin on SVM."""
-    if getattr(tb, "view_a", None) is not None:
-        return False
+    res² wide, the F atlas n_o (res + 2) tall).  Every ωo grid is drawn: uniform θo, the hemi-octahedral grid,
+    and view grids (``view_a`` / ``view_b``, the bi-scale bake's default) through the guide image "V"."""
     return tb.res * tb.res <= MAX_IMAGE_SIDE and tb.n_o * (tb.res + 2) <= MAX_IMAGE_SIDE
 
 
@@ -60,14 +61,20 @@ def table_hash(tb: tbm.ClosureTables) -> str:
     for a in (tb.F, tb.cdf):
         h.update(np.ascontiguousarray(a, np.float32).tobytes())
     h.update(repr((tb.res, tb.iso, tb.n_o, float(tb.alpha), tb.half, float(tb.extent), VERSION)).encode())
+    if getattr(tb, "view_a", None) is not None:      # view grids only: the hash of other tables is unchanged
+        for a in (tb.view_a, tb.view_b):
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
     return h.hexdigest()[:12]
 
 
 def images(tb: tbm.ClosureTables) -> dict:
     """Packed Non-Color float images of ``tabulated_brdf.svm_images`` ("A" RGBA, "F" RGB), shared by content."""
     arr = tbm.svm_images(tb)
-    return {"A": _data_image(IMAGE_PREFIX + "A", arr["A"], alpha=True),
-            "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
+    out = {"A": _data_image(IMAGE_PREFIX + "A", arr["A"], alpha=True),
+           "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
+    if "V" in arr:
+        out["V"] = _data_image(IMAGE_PREFIX + "V", arr["V"], alpha=False)
+    return out
 
 
 def ensure(tb: tbm.ClosureTables, _break: str | None = None) -> bpy.types.ShaderNodeTree:
@@ -135,6 +142,22 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         # the table frame (ωo at azimuth 0): fy = normalize(n x ωo'), fx = fy x n, ωo' = ωo + 1e-6 t (defined at ωo = n)
         fy = g.vmath("NORMALIZE", g.vmath("CROSS_PRODUCT", N, g.madd(t, 1e-6, wo)))
         fx = g.vmath("CROSS_PRODUCT", fy, N)
+    elif getattr(tb, "view_a", None) is not None:
+        # view grid: per axis the projected angle a = atan2(ωx, ωz) (b: ωy), its continuous node index x from
+        # the guide row (Linear lookup at (a scale + offset, 1/4 or 3/4); EXTEND clamps beyond the end nodes)
+        ey = g.vmath("CROSS_PRODUCT", N, t)
+        xs = []
+        for k, (axis, nodes) in enumerate(((t, tb.view_a), (ey, tb.view_b))):
+            _, scale, offset = tbm.svm_view_guide(nodes)
+            if flip:
+                scale = -scale
+            ang = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, axis), oz)
+            tv = g.node("ShaderNodeTexImage", image=imgs["V"], interpolation="Linear", extension="EXTEND")
+            g._set(tv.inputs["Vector"], g.madd(ang, (scale, 0.0, 0.0), (offset, 0.25 + 0.5 * k, 0.0)))
+            xs.append(tv.outputs["Color"])                              # (xa, 0, 0) and (0, xb, 0)
+        rc = g.vmath("FLOOR", g.vmath("ADD", xs[0], g.vmath("ADD", xs[1], h1)))
+        o = g.vmath("DOT_PRODUCT", rc, (float(len(tb.view_b)), 1.0, 0.0))
+        fx, fy = t, ey
     else:
         ey = g.vmath("CROSS_PRODUCT", N, t)
         A = g.vmath("DOT_PRODUCT", wo, g.vmath("ADD", t, ey))          # ωx + ωy
