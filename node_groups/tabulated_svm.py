@@ -74,17 +74,23 @@ def images(tb: tbm.ClosureTables) -> dict:
            "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
     if "V" in arr:
         out["V"] = _data_image(IMAGE_PREFIX + "V", arr["V"], alpha=False)
+    for img in out.values():    # EEVEE uploads float images as half floats by default (Cycles reads float32):
+        img.use_half_precision = False     # the guide's node index up to 18 would round by up to 0.008
     return out
 
 
-def ensure(tb: tbm.ClosureTables, _break: str | None = None) -> bpy.types.ShaderNodeTree:
+def ensure(tb: tbm.ClosureTables, _break: str | None = None, eevee: bool = False) -> bpy.types.ShaderNodeTree:
     """The node group of table ``tb`` (input "Tint", output "BSDF"), built once per table content.
+    ``eevee``: the EEVEE variant, whose F lookup is four Closest reads weighted bilinearly by nodes: EEVEE's
+    Linear image lookup is ``textureGrad`` with the screen-space derivatives of the coordinate, and the atlas
+    coordinate jumps from pixel to pixel (a random bin per sample), so it reads a coarse mip level (the atlas
+    blurred across bins and tiles: the aniso test table rendered 6 % dark in a white furnace, measured).
     ``_break`` (tests only): "view" picks the ωo node of the opposite view, "alias" skips the alias step
     (bin j straight from h): both must fail the render tests."""
     if not fits(tb):
         raise ValueError(f"table: res {tb.res}, {tb.n_o} view nodes exceed the {MAX_IMAGE_SIDE}-texel image limit")
-    name = GROUP_PREFIX + table_hash(tb) + (f" broken {_break}" if _break else "")
-    return ensure_group(name, VERSION, lambda ng: _build(ng, tb, images(tb), _break))
+    name = GROUP_PREFIX + table_hash(tb) + (" EEVEE" if eevee else "") + (f" broken {_break}" if _break else "")
+    return ensure_group(name, VERSION, lambda ng: _build(ng, tb, images(tb), _break, eevee))
 
 
 class _T(_G):
@@ -96,7 +102,28 @@ class _T(_G):
         return node.outputs["Vector"]
 
 
-def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
+def _closest_bilinear(g, img, xy, W: int, H: int):
+    """Bilinear interpolation of ``img`` (W x H texels) at texel-space point ``xy`` (a vector socket; texel
+    (i, j) centred at (i + 1/2, j + 1/2)) from four Closest / EXTEND reads: Cycles' Linear rule without
+    EEVEE's mip selection."""
+    p = g.vmath("SUBTRACT", xy, (0.5, 0.5, 0.0))
+    i = g.vmath("FLOOR", p)
+    fx, fy, _ = g.separate(g.vmath("SUBTRACT", p, i))
+    taps = []
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        t = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        g._set(t.inputs["Vector"], g.madd(i, (1.0 / W, 1.0 / H, 0.0), ((dx + 0.5) / W, (dy + 0.5) / H, 0.0)))
+        taps.append(t.outputs["Color"])
+
+    def mix(f, a, b):
+        m = g.node("ShaderNodeMix", data_type="RGBA", blend_type="MIX", clamp_factor=False)
+        for sock, v in zip([s for s in m.inputs if s.enabled], (f, a, b)):     # Factor, A, B (colour)
+            g._set(sock, v)
+        return next(s for s in m.outputs if s.enabled)
+    return mix(fy, mix(fx, taps[0], taps[1]), mix(fx, taps[2], taps[3]))
+
+
+def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: bool = False) -> None:
     add_socket(ng, "Tint", "INPUT", "NodeSocketColor", (1.0, 1.0, 1.0, 1.0))
     add_socket(ng, "BSDF", "OUTPUT", "NodeSocketShader")
     g = _T(ng)
@@ -187,9 +214,13 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     gv = g.madd(rk, (-float(res), 1.0, 0.0), g.madd(lo, (1.0, 0.0, 0.0), jit))
     # f: Linear lookup in node o's padded tile
     W, H = res + 2, n_o * (res + 2)
-    off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
-    tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
-    g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
+    if eevee:       # texel space (1 + g0, o (res + 2) + 1 + g1)
+        f_rgb = _closest_bilinear(g, imgs["F"], g.madd(o, (0.0, res + 2.0, 0.0), g.vmath("ADD", gv, (1.0, 1.0, 0.0))), W, H)
+    else:
+        off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
+        tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
+        g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
+        f_rgb = tf.outputs["Color"]
     # 3. the target: q = Z ((g0 + g1) cell/2 - 1, (g1 - g0) cell/2) (one Mapping node: -45° and scale), v = (q, 1 - |q|₁)
     mp = g.node("ShaderNodeMapping", vector_type="POINT")
     g._set(mp.inputs["Vector"], gv)
@@ -220,7 +251,7 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     s = g.math("MULTIPLY", s, inv_p)
     if tbm.svm_uses_albedo(tb):
         s = g.math("MULTIPLY", s, inv_albedo(cd))
-    colour = g.vmath("MULTIPLY", g.vmath("SCALE", tf.outputs["Color"], scale=s), gin.outputs["Tint"])
+    colour = g.vmath("MULTIPLY", g.vmath("SCALE", f_rgb, scale=s), gin.outputs["Tint"])
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
     g._set(glossy.inputs["Color"], colour)
     g._set(glossy.inputs["Roughness"], float(glossy_node_params(tb.alpha, tb.alpha)[0]))
