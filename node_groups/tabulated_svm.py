@@ -44,7 +44,7 @@ from .scratch_svm import _data_image, _G
 
 GROUP_PREFIX = "Scratch: Tabulated BRDF "
 IMAGE_PREFIX = "Scratch tabulated "
-VERSION = 4
+VERSION = 3
 #: largest image side the graph uses (GPU textures and EEVEE: 16384 on common hardware)
 MAX_IMAGE_SIDE = 16384
 
@@ -143,12 +143,10 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
         wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="4D")
         g._set(wn.inputs["Vector"], P)
         g._set(wn.inputs["W"], w)
-        return wn.outputs["Color"], wn.outputs["Value"]
+        return wn.outputs["Color"]
     oz = g.vmath("DOT_PRODUCT", wo, N)
-    h1, _ = noise(w_hash)
-    # another 4D point (P, ωo·n): an independent hash.  (Not the same node's Value output: Cycles' White Noise Value
-    # is the hash its Colour's x is made of, so Value == Colour.x; sharing it biased an isotropic table by ~1.5 %.)
-    jit, _ = noise(oz)
+    h1 = noise(w_hash)
+    jit = noise(oz)                          # another 4D point (P, ωo·n): an independent hash, no extra node
     u0, _, hk = g.separate(h1)
 
     def map_range(x, lo, hi, a, b, vector=False):
@@ -223,10 +221,14 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
         tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
         g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
         f_rgb = tf.outputs["Color"]
-    # 3. the target: q = Z ((g0 + g1) cell/2 - 1, (g1 - g0) cell/2), v = (q, 1 - |q|₁); (g0 + g1, g1 - g0) =
-    # gv + gv x ẑ (three Vector Math nodes: ~200 instructions where a Mapping node took ~350)
-    gz = g.vmath("ADD", gv, g.vmath("CROSS_PRODUCT", gv, (0.0, 0.0, 1.0)))
-    q = g.madd(gz, (0.5 * Z * cell, 0.5 * Z * cell, 0.0), (-Z, 0.0, 0.0))
+    # 3. the target: q = Z ((g0 + g1) cell/2 - 1, (g1 - g0) cell/2) (one Mapping node: -45° and scale), v = (q, 1 - |q|₁)
+    mp = g.node("ShaderNodeMapping", vector_type="POINT")
+    g._set(mp.inputs["Vector"], gv)
+    mp.inputs["Location"].default_value = (-Z, 0.0, 0.0)
+    mp.inputs["Rotation"].default_value = (0.0, 0.0, -0.25 * math.pi)
+    sc = Z * cell / math.sqrt(2.0)
+    mp.inputs["Scale"].default_value = (sc, sc, 0.0)
+    q = mp.outputs["Vector"]
     qz = g.math("SUBTRACT", 1.0, g.vmath("DOT_PRODUCT", g.vmath("ABSOLUTE", q), (1.0, 1.0, 0.0)))
     qx, qy, _ = g.separate(q)
     x = g.madd(N, qz, g.madd(fy, qy, g.vmath("SCALE", fx, scale=qx)))
