@@ -21,7 +21,8 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 The group is built per table (images and constants are the table's) and shared by content hash.
 
 Cost (``bench/tabulated_cost``, whole frame, per sample): 1.55-1.57x the SVM anisotropic Glossy (goal 1.3x, not
-met; the OSL closure measures 1.29-1.35x in the same run).  Per sample the graph runs 2 White Noise, 2 image
+met; the OSL closure measures 1.29-1.35x in the same run); callgrind of that scene (``tabulated_cost --callgrind``,
+load-free, ``bench/out/tabulated_callgrind.md``): aniso 1.72x, isotropic 1.65x, a bi-scale-size view-grid table 1.75x.  Per sample the graph runs 2 White Noise, 2 image
 lookups and ~45 Math / Vector Math nodes (isotropic: 50 nodes in the group); callgrind of a 32² x 4 spp frame
 (load-free instruction counts, render threads only): 1.65x the baseline's instructions (1.63x before the vector
 rewrite of VERSION 3), the extra being SVM node interpretation (svm_eval_nodes 23 % of the frame, White Noise

@@ -7,7 +7,7 @@ node; the table itself, not a fit; view grids included).  EEVEE renders the same
 (``tabulated_svm.ensure(eevee=True)``: the atlas read by four Closest lookups, because EEVEE's Linear lookup
 picks a mip level from the screen-space derivatives of a coordinate that jumps per pixel, and blurred the
 table: 6-11 % dark in a white furnace, the cause of last round's EEVEE errors).  Measured against Cycles SVM
-(aniso test table, 32² x 128 samples): studio world 0.0-1.3 %, area lamp only 1.1-3.6 % at three views, white
+(aniso test table, 32² x 64-128 samples): studio world 0.0-1.3 %, area lamp 1.0-3.8 % at three views, white
 furnace 0.2-0.6 % (all table kinds); the fitted twin misses the same renders by 5-52 %.  The closure is
 sampled once per pixel sample, so EEVEE shows grain that falls with Render Samples (pixel std 2.4 % of the
 mean at 64 samples in the furnace).  ``eevee_table=False`` keeps a fitted twin in EEVEE instead: a
