@@ -16,7 +16,10 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
-  interpolation of the OSL shader, never bleeding into a neighbour tile).
+  interpolation of the OSL shader, never bleeding into a neighbour tile); in the EEVEE variant (``ensure(eevee=True)``)
+  four Closest lookups weighted by Mix nodes, because EEVEE's Linear lookup picks a mip level from the per-pixel
+  jumps of the coordinate.  (White Noise's Value output equals its Colour's x in Cycles: one node gives three
+  independent uniforms, not four.)
 
 The group is built per table (images and constants are the table's) and shared by content hash.
 
