@@ -9,7 +9,12 @@ table (Wu's single bounce), the same plus the inter-reflections inside the tile
 Error per view: max over RGB of |mean(baked) - mean(explicit)| / mean(explicit), next to its render
 noise (1σ, from two seeds per image: ``render_set(noise=True)``).
 
-    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--spp 64] [--seeds 2] [--figure]
+``--svm``: the baked materials render on Cycles SVM (the default shading system, and GPU): the closure table
+through its node graph (``node_groups.tabulated_svm``, view grid included), the fits as nodes; the explicit
+tiles (ordinary BSDFs) render on SVM too; every baked material is rendered on OSL as well in the same run
+(rows "... (OSL)"), the same bake and explicit frames.  Output ``bench/out/biscale_truth_svm.md``.
+
+    .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--svm] [--spp 64] [--seeds 2] [--figure]
 """
 from __future__ import annotations
 
@@ -72,7 +77,7 @@ def frame_mean_se(imgs):
 
 
 def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None,
-               seed=7, seeds=None, noise=False, shifts=1):
+               seed=7, seeds=None, noise=False, shifts=1, osl=True):
     """Mean RGB per view of the explicit tiles (rendered once per seed) and of every baked material in
     ``mats`` (name -> material) on a plane: returns (explicit (V, 3), {name: (V, 3)}, seconds per kind),
     and with ``noise=True`` a fourth item, the standard error of each mean ({"explicit" | name: (V, 3)}).
@@ -85,7 +90,8 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
     ``shifts`` > 1: each image is the pixel mean of renders with the camera moved by ``camera_shifts``
     (x the tile's world period ``4 m / n``) at ``spp // shifts`` samples each (same total samples), so the
     explicit mean is the tile average, not one footprint's phase; the seeds see the same offsets, so the
-    noise estimate stays the Monte Carlo noise only."""
+    noise estimate stays the Monte Carlo noise only.  ``osl``: Cycles' shading system (False: SVM, what a
+    default scene and the GPU render), or a dict kind -> bool ("explicit" or a key of ``mats``; missing: OSL)."""
     import bpy
 
     from scratch_materials.scratch_addon import biscale_truth, render
@@ -118,7 +124,8 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
                 render.add_camera(scene, location=loc, target=tuple(tgt), ortho_scale=0.4)
                 for j, sd in enumerate(seeds):
                     render.configure_cycles(scene, samples=max(1, spp // len(offs)), res=(res, res), seed=sd,
-                                            osl=True, max_bounces=bounces)
+                                            osl=osl.get(kind, True) if isinstance(osl, dict) else osl,
+                                            max_bounces=bounces)
                     img, s = render.render_array(scene, tmp, "explicit" if kind == "explicit" else "baked")
                     imgs[j] += img.reshape(-1, 3).astype(np.float64) / len(offs)
                     secs[kind] += s                                 # imgs: (seeds, pixels, 3)
@@ -199,6 +206,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--tiles", default=",".join(TILES))
     ap.add_argument("--bake-seed", type=int, default=0, help="seed of the bake (facets, indirect paths)")
     ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
+    ap.add_argument("--svm", action="store_true", help="render on Cycles SVM (the default shading system) instead of OSL")
+    ap.add_argument("--tag", default="", help="suffix of the output name (bench/out/biscale_truth[_svm]_<tag>.md)")
     args = ap.parse_args(argv)
     addon = blender()
     from scratch_materials.precompute.biscale import geometry
@@ -219,9 +228,14 @@ def main(argv: list[str]) -> int:
         for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
             use = [k for k in variants if bounces or "inter-refl." not in k]
             mats_bl = {k: _material(f"{name} {k}", *variants[k]) for k in use}
+            osl = True
+            if args.svm:        # each baked material on SVM and on OSL; the explicit tiles on SVM
+                mats_bl = {f"{k} ({p})": m for k, m in mats_bl.items() for p in ("SVM", "OSL")}
+                osl = {"explicit": False, **{k: k.endswith("(OSL)") for k in mats_bl}}
+                use = list(mats_bl)
             ex, bk, secs, se = render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=args.spp,
                                           bounces=bounces, noise=True, seeds=range(7, 7 + args.seeds),
-                                          shifts=args.shifts)
+                                          shifts=args.shifts, osl=osl)
             for k in use:
                 err, sig = rel_error(ex, bk[k], se["explicit"], se[k])
                 for v, e, sg, a, b in zip(views, err, sig, ex, bk[k]):
@@ -230,9 +244,10 @@ def main(argv: list[str]) -> int:
                                  np.round(b, 4).tolist(), bake_s])
                     print(rows[-1], flush=True)
         print(name, "indirect estimate", info["estimate"], flush=True)
-    report("biscale_truth", ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
+    report(("biscale_truth_svm" if args.svm else "biscale_truth") + (f"_{args.tag}" if args.tag else ""), ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
-           notes=f"bake seed {args.bake_seed}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
+           notes=f"shading system {'SVM (explicit tiles and the rows (SVM): the baked table through its node graph; rows (OSL): the same material on OSL in the same run)' if args.svm else 'OSL'}; "
+                 f"bake seed {args.bake_seed}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
                  f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
                  f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
                  "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "

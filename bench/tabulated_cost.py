@@ -15,6 +15,7 @@ Cycles' default shading system (SVM), which renders the table as nodes (``node_g
 bin pick, one narrow Glossy node).
 
     .venv/bin/python -m bench tabulated_cost [--quick] [--spp 33] [--rounds 5] [--res 96] [--only SVM]
+    .venv/bin/python -m bench tabulated_cost --callgrind [--only "view grid"]   (load-free instruction counts)
 """
 from __future__ import annotations
 
@@ -42,7 +43,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--res", type=int, default=96)
     ap.add_argument("--only", default=None, help="rows whose name contains this (and the baseline)")
+    ap.add_argument("--callgrind", action="store_true", help="instructions per sample under valgrind (load-free)")
     args = ap.parse_args(argv)
+    if args.callgrind:
+        return callgrind_main(only=args.only or "")
     if args.quick:
         args.spp, args.rounds, args.res = 5, 1, 48
     blender()
@@ -120,4 +124,78 @@ def main(argv: list[str]) -> int:
                  f"area lamp, adaptive sampling off; per sample = (t({args.spp}) - t(1)) / {args.spp - 1} after a discarded "
                  f"1-spp warm-up render, CPU time (user + sys) of the render process; {args.rounds} interleaved rounds, medians; load average "
                  f"{load0[0]:.1f} at start, {load1[0]:.1f} at end, 2 cores")
+    return 0
+
+
+# ----------------------------------------------------------------------------- load-free: callgrind
+def _callgrind_setups():
+    """(name, factory() -> material) of the callgrind set-ups: the baseline and the SVM table graphs."""
+    import numpy as np
+
+    from scratch_materials.precompute.tables import tabulated_brdf as tb
+    from scratch_materials.scratch_addon import materials, tabulated_material
+
+    def glossy(wi, wo):
+        return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
+
+    def baseline():
+        m = materials.new_material("SVM aniso glossy")
+        g = m.node_tree.nodes.new("ShaderNodeBsdfGlossy")
+        g.distribution = "GGX"
+        g.inputs["Roughness"].default_value = 0.45
+        g.inputs["Anisotropy"].default_value = 0.8
+        tan = m.node_tree.nodes.new("ShaderNodeTangent")
+        tan.direction_type = "UV_MAP"
+        m.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
+        m.node_tree.links.new(g.outputs["BSDF"], m.node_tree.nodes["Material Output"].inputs["Surface"])
+        return m
+
+    def table(**kw):
+        return lambda: tabulated_material.make_tabulated_material(tb.TabulatedBRDF.from_function(glossy, **kw), "t")
+    vg = tb.view_grid_nodes(19, events=(-0.6458, 0.6458))
+    return [("SVM aniso Glossy", baseline), ("SVM table aniso 10²x10²", table(res=10)),
+            ("SVM table iso 32²x32", table(res=32, iso=True, n_theta=32)),
+            ("SVM table view grid 19² x 19x19 (bi-scale size)", table(res=19, view_a=vg, view_b=tb.view_grid_nodes(19)))]
+
+
+def callgrind_main(res: int = 32, spp: int = 4, jobs: int = 2, only: str = "") -> int:
+    """Instructions per pixel-sample of each set-up (``_callgrind_setups``) under callgrind (``bench/scratch_svm_profile``:
+    only Cycles' path-tracing loop counted), the ``tabulated_cost`` scene at ``res``² x ``spp``, one render thread."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bench import scratch_svm_profile as prof
+    from bench._util import blender, report
+
+    blender()
+    import bpy
+
+    from scratch_materials.scratch_addon import render
+
+    folder = tempfile.mkdtemp(prefix="bench_tab_cg_")
+    built = []
+    for i, (name, make) in enumerate(_callgrind_setups()):
+        if only and i and only not in name:
+            continue
+        bpy.ops.wm.read_homefile(use_empty=True)
+        scene = render.reset_scene()
+        render.studio_world(scene, 1.0)
+        render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
+        render.add_sphere(scene, radius=1.0, material=make())
+        render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)
+        render.configure_cycles(scene, samples=spp, res=(res, res), seed=0, threads=1)
+        path = os.path.join(folder, f"setup{i}.blend")
+        bpy.ops.wm.save_as_mainfile(filepath=path, compress=False)
+        built.append((name, path))
+    with ThreadPoolExecutor(jobs) as pool:
+        futures = {name: pool.submit(prof.callgrind, path, 8) for name, path in built}
+    results = {name: f.result() for name, f in futures.items()}
+    n = res * res * spp
+    base = results[built[0][0]][0]
+    rows = [[name, f"{total / n:.0f}", f"{total / base:.3f}x",
+             "; ".join(f"{f} {100 * ir / total:.0f} %" for ir, f in funcs[:6] if ir > 0.02 * total)]
+            for name, (total, funcs) in results.items()]
+    report("tabulated_callgrind", ["setup", "Ir / pixel-sample", "vs SVM aniso Glossy", "top self cost"], rows,
+           notes=f"callgrind (valgrind), the tabulated_cost scene (UV sphere filling an orthographic view, studio world + "
+                 f"area lamp) at {res}x{res} px, {spp} spp, one render thread; Ir counted inside {prof.TOGGLE.rstrip('*')} "
+                 "only; deterministic, independent of the machine's load")
     return 0

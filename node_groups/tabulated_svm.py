@@ -8,18 +8,26 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 
 - random numbers: two 4D White Noise colours of (P, ωo·k) (P jitters per sample, as OSL's hashnoise);
 - the ωo node: floor(x + h) per axis (isotropic: x the continuous θo index; anisotropic: the hemi-octahedral
-  row and column drawn independently), which gives each tap its interpolation weight;
+  row and column drawn independently; view grids: x(a), x(b) of the projected view angles a = atan2(ωx, ωz),
+  b = atan2(ωy, ωz) from one Linear lookup each of a 4096-texel guide of the piecewise-linear node index
+  (``tabulated_brdf.svm_view_guide``: exact at the texels and the end nodes, off by <= Δ/4 x the slope jump in
+  the texel interval around an interior node, 2.7e-3 of a weight for nodes 0.05 rad apart, measured 1.6e-4 on
+  the test grid), which gives each tap its interpolation weight (``view_taps``);
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - the smooth floor (``tabulated_brdf.floor_split``): a Diffuse BSDF of colour kd x Tint added to the Glossy
   (``_floor``), the images holding the residual, as the OSL shader's FLOOR;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
-  interpolation of the OSL shader, never bleeding into a neighbour tile).
+  interpolation of the OSL shader, never bleeding into a neighbour tile); in the EEVEE variant (``ensure(eevee=True)``)
+  four Closest lookups weighted by Mix nodes, because EEVEE's Linear lookup picks a mip level from the per-pixel
+  jumps of the coordinate.  (White Noise's Value output equals its Colour's x in Cycles: one node gives three
+  independent uniforms, not four.)
 
 The group is built per table (images and constants are the table's) and shared by content hash.
 
 Cost (``bench/tabulated_cost``, whole frame, per sample): 1.55-1.57x the SVM anisotropic Glossy (goal 1.3x, not
-met; the OSL closure measures 1.29-1.35x in the same run).  Per sample the graph runs 2 White Noise, 2 image
+met; the OSL closure measures 1.29-1.35x in the same run); callgrind of that scene (``tabulated_cost --callgrind``,
+load-free, ``bench/out/tabulated_callgrind.md``): aniso 1.72x, isotropic 1.65x, a bi-scale-size view-grid table 1.75x.  Per sample the graph runs 2 White Noise, 2 image
 lookups and ~45 Math / Vector Math nodes (isotropic: 50 nodes in the group); callgrind of a 32² x 4 spp frame
 (load-free instruction counts, render threads only): 1.65x the baseline's instructions (1.63x before the vector
 rewrite of VERSION 3), the extra being SVM node interpretation (svm_eval_nodes 23 % of the frame, White Noise
@@ -50,11 +58,8 @@ MAX_IMAGE_SIDE = 16384
 
 def fits(tb: tbm.ClosureTables) -> bool:
     """True if the graph can render the table: its images stay within ``MAX_IMAGE_SIDE`` (the alias rows are
-    res² wide, the F atlas n_o (res + 2) tall) and its ωo nodes are the default ones (uniform θo / the
-    hemi-octahedral grid: the graph's view-node pick); a table on a view grid (``view_a`` / ``view_b``, the
-    bi-scale bake's default) keeps the fitted twin on SVM."""
-    if getattr(tb, "view_a", None) is not None:
-        return False
+    res² wide, the F atlas n_o (res + 2) tall).  Every ωo grid is drawn: uniform θo, the hemi-octahedral grid,
+    and view grids (``view_a`` / ``view_b``, the bi-scale bake's default) through the guide image "V"."""
     return tb.res * tb.res <= MAX_IMAGE_SIDE and tb.n_o * (tb.res + 2) <= MAX_IMAGE_SIDE
 
 
@@ -64,24 +69,36 @@ def table_hash(tb: tbm.ClosureTables) -> str:
         h.update(np.ascontiguousarray(a, np.float32).tobytes())
     h.update(repr((tb.res, tb.iso, tb.n_o, float(tb.alpha), tb.half, float(tb.extent), VERSION)).encode())
     h.update(np.asarray(getattr(tb, "kd", np.zeros(3)), np.float32).tobytes())       # the Diffuse floor
+    if getattr(tb, "view_a", None) is not None:      # view grids only: the hash of other tables is unchanged
+        for a in (tb.view_a, tb.view_b):
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
     return h.hexdigest()[:12]
 
 
 def images(tb: tbm.ClosureTables) -> dict:
     """Packed Non-Color float images of ``tabulated_brdf.svm_images`` ("A" RGBA, "F" RGB), shared by content."""
     arr = tbm.svm_images(tb)
-    return {"A": _data_image(IMAGE_PREFIX + "A", arr["A"], alpha=True),
-            "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
+    out = {"A": _data_image(IMAGE_PREFIX + "A", arr["A"], alpha=True),
+           "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
+    if "V" in arr:
+        out["V"] = _data_image(IMAGE_PREFIX + "V", arr["V"], alpha=False)
+    for img in out.values():    # EEVEE uploads float images as half floats by default (Cycles reads float32):
+        img.use_half_precision = False     # the guide's node index up to 18 would round by up to 0.008
+    return out
 
 
-def ensure(tb: tbm.ClosureTables, _break: str | None = None) -> bpy.types.ShaderNodeTree:
+def ensure(tb: tbm.ClosureTables, _break: str | None = None, eevee: bool = False) -> bpy.types.ShaderNodeTree:
     """The node group of table ``tb`` (input "Tint", output "BSDF"), built once per table content.
+    ``eevee``: the EEVEE variant, whose F lookup is four Closest reads weighted bilinearly by nodes: EEVEE's
+    Linear image lookup is ``textureGrad`` with the screen-space derivatives of the coordinate, and the atlas
+    coordinate jumps from pixel to pixel (a random bin per sample), so it reads a coarse mip level (the atlas
+    blurred across bins and tiles: the aniso test table rendered 6 % dark in a white furnace, measured).
     ``_break`` (tests only): "view" picks the ωo node of the opposite view, "alias" skips the alias step
     (bin j straight from h), "floor" counts the Diffuse floor twice: each must fail the render tests."""
     if not fits(tb):
         raise ValueError(f"table: res {tb.res}, {tb.n_o} view nodes exceed the {MAX_IMAGE_SIDE}-texel image limit")
-    name = GROUP_PREFIX + table_hash(tb) + (f" broken {_break}" if _break else "")
-    return ensure_group(name, VERSION, lambda ng: _build(ng, tb, images(tb), _break))
+    name = GROUP_PREFIX + table_hash(tb) + (" EEVEE" if eevee else "") + (f" broken {_break}" if _break else "")
+    return ensure_group(name, VERSION, lambda ng: _build(ng, tb, images(tb), _break, eevee))
 
 
 class _T(_G):
@@ -93,7 +110,28 @@ class _T(_G):
         return node.outputs["Vector"]
 
 
-def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
+def _closest_bilinear(g, img, xy, W: int, H: int):
+    """Bilinear interpolation of ``img`` (W x H texels) at texel-space point ``xy`` (a vector socket; texel
+    (i, j) centred at (i + 1/2, j + 1/2)) from four Closest / EXTEND reads: Cycles' Linear rule without
+    EEVEE's mip selection."""
+    p = g.vmath("SUBTRACT", xy, (0.5, 0.5, 0.0))
+    i = g.vmath("FLOOR", p)
+    fx, fy, _ = g.separate(g.vmath("SUBTRACT", p, i))
+    taps = []
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        t = g.node("ShaderNodeTexImage", image=img, interpolation="Closest", extension="EXTEND")
+        g._set(t.inputs["Vector"], g.madd(i, (1.0 / W, 1.0 / H, 0.0), ((dx + 0.5) / W, (dy + 0.5) / H, 0.0)))
+        taps.append(t.outputs["Color"])
+
+    def mix(f, a, b):
+        m = g.node("ShaderNodeMix", data_type="RGBA", blend_type="MIX", clamp_factor=False)
+        for sock, v in zip([s for s in m.inputs if s.enabled], (f, a, b)):     # Factor, A, B (colour)
+            g._set(sock, v)
+        return next(s for s in m.outputs if s.enabled)
+    return mix(fy, mix(fx, taps[0], taps[1]), mix(fx, taps[2], taps[3]))
+
+
+def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: bool = False) -> None:
     add_socket(ng, "Tint", "INPUT", "NodeSocketColor", (1.0, 1.0, 1.0, 1.0))
     add_socket(ng, "BSDF", "OUTPUT", "NodeSocketShader")
     g = _T(ng)
@@ -139,6 +177,22 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
         # the table frame (ωo at azimuth 0): fy = normalize(n x ωo'), fx = fy x n, ωo' = ωo + 1e-6 t (defined at ωo = n)
         fy = g.vmath("NORMALIZE", g.vmath("CROSS_PRODUCT", N, g.madd(t, 1e-6, wo)))
         fx = g.vmath("CROSS_PRODUCT", fy, N)
+    elif getattr(tb, "view_a", None) is not None:
+        # view grid: per axis the projected angle a = atan2(ωx, ωz) (b: ωy), its continuous node index x from
+        # the guide row (Linear lookup at (a scale + offset, 1/4 or 3/4); EXTEND clamps beyond the end nodes)
+        ey = g.vmath("CROSS_PRODUCT", N, t)
+        xs = []
+        for k, (axis, nodes) in enumerate(((t, tb.view_a), (ey, tb.view_b))):
+            _, scale, offset = tbm.svm_view_guide(nodes)
+            if flip:
+                scale = -scale
+            ang = g.math("ARCTAN2", g.vmath("DOT_PRODUCT", wo, axis), oz)
+            tv = g.node("ShaderNodeTexImage", image=imgs["V"], interpolation="Linear", extension="EXTEND")
+            g._set(tv.inputs["Vector"], g.madd(ang, (scale, 0.0, 0.0), (offset, 0.25 + 0.5 * k, 0.0)))
+            xs.append(tv.outputs["Color"])                              # (xa, 0, 0) and (0, xb, 0)
+        rc = g.vmath("FLOOR", g.vmath("ADD", xs[0], g.vmath("ADD", xs[1], h1)))
+        o = g.vmath("DOT_PRODUCT", rc, (float(len(tb.view_b)), 1.0, 0.0))
+        fx, fy = t, ey
     else:
         ey = g.vmath("CROSS_PRODUCT", N, t)
         A = g.vmath("DOT_PRODUCT", wo, g.vmath("ADD", t, ey))          # ωx + ωy
@@ -168,9 +222,13 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     gv = g.madd(rk, (-float(res), 1.0, 0.0), g.madd(lo, (1.0, 0.0, 0.0), jit))
     # f: Linear lookup in node o's padded tile
     W, H = res + 2, n_o * (res + 2)
-    off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
-    tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
-    g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
+    if eevee:       # texel space (1 + g0, o (res + 2) + 1 + g1)
+        f_rgb = _closest_bilinear(g, imgs["F"], g.madd(o, (0.0, res + 2.0, 0.0), g.vmath("ADD", gv, (1.0, 1.0, 0.0))), W, H)
+    else:
+        off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
+        tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
+        g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
+        f_rgb = tf.outputs["Color"]
     # 3. the target: q = Z ((g0 + g1) cell/2 - 1, (g1 - g0) cell/2) (one Mapping node: -45° and scale), v = (q, 1 - |q|₁)
     mp = g.node("ShaderNodeMapping", vector_type="POINT")
     g._set(mp.inputs["Vector"], gv)
@@ -201,7 +259,7 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None) -> None:
     s = g.math("MULTIPLY", s, inv_p)
     if tbm.svm_uses_albedo(tb):
         s = g.math("MULTIPLY", s, inv_albedo(cd))
-    colour = g.vmath("MULTIPLY", g.vmath("SCALE", tf.outputs["Color"], scale=s), gin.outputs["Tint"])
+    colour = g.vmath("MULTIPLY", g.vmath("SCALE", f_rgb, scale=s), gin.outputs["Tint"])
     glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
     g._set(glossy.inputs["Color"], colour)
     g._set(glossy.inputs["Roughness"], float(glossy_node_params(tb.alpha, tb.alpha)[0]))

@@ -4,7 +4,9 @@ An OSL-backed material holds two surfaces: the OSL script's closure and an SVM t
 ordinary nodes.  The Cycles output takes a Mix Shader between them whose factor is the
 ``Scratch: Render Path`` group (1 exactly when Cycles runs OSL on the CPU; drivers on the active
 scene, see ``node_groups/render_path.py``), and a second Material Output with target EEVEE takes
-the SVM twin.  Materials without OSL keep one output (target All).
+the SVM twin (tabulated BRDFs: the table graph's EEVEE variant, ``tabulated_material``; a fitted twin
+where the table does not fit the images or ``eevee_table=False``).  Materials without OSL keep one
+output (target All).  ``describe`` says which path renders a material in a scene.
 """
 from __future__ import annotations
 
@@ -93,6 +95,9 @@ def describe(material, scene) -> tuple[str, str]:
     table = material.get("tabulated_svm")            # tabulated BRDFs: "table" (node graph) or "fit"
     what = "iridescent glints" if iridescent else "tabulated BRDF" if table else "OSL shader"
     if engine != "CYCLES":
+        if material.get("tabulated_eevee") == "table":
+            return "CHECKMARK", (f"{engine.title().replace('_', ' ')} renders the tabulated BRDF as node groups (one "
+                                 "sampled closure per pixel sample: grain falls with Render Samples)")
         twin = ("the base material without glints" if iridescent else "its fitted node twin (an approximation)"
                 if table else "its SVM twin (node groups)")
         need = "Cycles" if table == "table" else "Cycles OSL on the CPU"

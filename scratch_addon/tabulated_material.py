@@ -3,13 +3,18 @@
 Cycles OSL (CPU) renders the table exactly with ``osl/tabulated_brdf.osl`` (one narrow microfacet
 closure per sample, light sampling intact); Cycles SVM (the default shading system, and GPU) renders the
 same closure from ordinary nodes (``node_groups.tabulated_svm``: alias-table bin pick, one narrow Glossy
-node; the table itself, not a fit).  EEVEE renders a twin built from ordinary nodes (``render_paths``): a
+node; the table itself, not a fit; view grids included).  EEVEE renders the same graph in its EEVEE variant
+(``tabulated_svm.ensure(eevee=True)``: the atlas read by four Closest lookups, because EEVEE's Linear lookup
+picks a mip level from the screen-space derivatives of a coordinate that jumps per pixel, and blurred the
+table: 6-11 % dark in a white furnace, the cause of last round's EEVEE errors).  Measured against Cycles SVM
+(aniso test table, 32² x 64-128 samples): studio world 0.0-1.3 %, area lamp 1.0-3.8 % at three views, white
+furnace 0.2-0.6 % (all table kinds); the fitted twin misses the same renders by 5-52 %.  The closure is
+sampled once per pixel sample, so EEVEE shows grain that falls with Render Samples (pixel std 2.4 % of the
+mean at 64 samples in the furnace).  ``eevee_table=False`` keeps a fitted twin in EEVEE instead: a
 caller-supplied surface (bi-scale: its fitted closures; Dong: the ellipsoid lobe) or the Diffuse + Glossy
-least-squares twin of ``tabulated_brdf.glossy_twin``: EEVEE's lighting does not integrate a one-sample
-narrow lobe (measured: a GGX + Lambert table renders 37 % too bright and speckled at 64 samples), so the
-table graph is for Cycles only.  Tables whose images would exceed ``tabulated_svm.MAX_IMAGE_SIDE`` (or
-``svm_table=False``) keep the fitted twin on Cycles SVM too.  The material's bump-map correction is off
-(it would bend the closure's micro-normal back to the geometric normal).
+least-squares twin of ``tabulated_brdf.glossy_twin``.  Tables whose images would exceed
+``tabulated_svm.MAX_IMAGE_SIDE`` (or ``svm_table=False``) keep the fitted twin on Cycles SVM and EEVEE.  The
+material's bump-map correction is off (it would bend the closure's micro-normal back to the geometric normal).
 """
 from __future__ import annotations
 
@@ -42,12 +47,12 @@ def glossy_twin_surface(tree, twin: dict, location=(-300, -200)):
     return add.outputs["Shader"]
 
 
-def table_surface(tree, tables, location=(-300, 200)):
-    """The table graph (``node_groups.tabulated_svm``) of ``tables`` (``ClosureTables``) as a group node; returns
-    its BSDF socket."""
+def table_surface(tree, tables, location=(-300, 200), eevee: bool = False):
+    """The table graph (``node_groups.tabulated_svm``) of ``tables`` (``ClosureTables``) as a group node (``eevee``:
+    its EEVEE variant); returns its BSDF socket."""
     node = tree.nodes.new("ShaderNodeGroup")
-    node.node_tree = tabulated_svm.ensure(tables)
-    node.name = node.label = "Tabulated BRDF (SVM)"
+    node.node_tree = tabulated_svm.ensure(tables, eevee=eevee)
+    node.name = node.label = "Tabulated BRDF (EEVEE)" if eevee else "Tabulated BRDF (SVM)"
     node.location = location
     return node.outputs["BSDF"]
 
@@ -59,28 +64,32 @@ def tabulated_script(mat, source: str):
 
 
 def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | None = None, svm_twin=None,
-                            kind: str = "tabulated", svm_table: bool = True, floor: bool = True) -> bpy.types.Material:
+                            kind: str = "tabulated", svm_table: bool = True, eevee_table: bool = True,
+                            floor: bool = True) -> bpy.types.Material:
     """Material rendering ``brdf`` (``TabulatedBRDF``) exactly in Cycles (OSL: ``osl/tabulated_brdf.osl``;
-    SVM / GPU: the same closure as nodes, ``node_groups.tabulated_svm``) and through a fitted node twin in
-    EEVEE.  ``svm_twin(tree) -> socket`` builds that twin (default: ``glossy_twin``); it also renders Cycles
-    SVM when ``svm_table`` is False or the table exceeds the image limit (``tabulated_svm.fits``).
-    ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom property
-    ``tabulated_svm``: "table" or "fit" (what Cycles SVM renders).  ``floor``: render the BRDF's smooth part
-    kd/π as a Diffuse closure and only the residual through the table closure (``tabulated_brdf.floor_split``;
-    custom property ``tabulated_floor``: kd).
+    SVM / GPU: the same closure as nodes, ``node_groups.tabulated_svm``) and EEVEE (the graph's EEVEE variant;
+    ``eevee_table=False``: a fitted node twin).  ``svm_twin(tree) -> socket`` builds the fitted twin (default:
+    ``glossy_twin``); it renders Cycles SVM and EEVEE when ``svm_table`` is False or the table exceeds the image
+    limit (``tabulated_svm.fits``), and EEVEE when ``eevee_table`` is False; it is not built when unused.
+    ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom properties
+    ``tabulated_svm`` / ``tabulated_eevee``: "table" or "fit" (what Cycles SVM / EEVEE render).  ``floor``: render
+    the BRDF's smooth part kd/π as a Diffuse closure and only the residual through the table closure
+    (``tabulated_brdf.floor_split``; custom property ``tabulated_floor``: kd).
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
     src = tabulated_osl.generate(brdf, alpha=alpha, floor=floor)      # ValueError before anything is created
     tables = tabulated_brdf.closure_tables(brdf, alpha, floor)
     use_table = bool(svm_table) and tabulated_svm.fits(tables)
+    ee_table = use_table and bool(eevee_table)
     twin = None if svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
     n_groups, n_images = set(bpy.data.node_groups), set(bpy.data.images)
     mat = new_material(name)
     try:
         tree = mat.node_tree
-        fitted = svm_twin(tree) if svm_twin is not None else glossy_twin_surface(tree, twin)
+        fitted = None if ee_table else svm_twin(tree) if svm_twin is not None else glossy_twin_surface(tree, twin)
         svm = table_surface(tree, tables) if use_table else fitted
+        eevee = table_surface(tree, tables, (-300, -200), eevee=True) if ee_table else fitted
         osl = tabulated_script(mat, src)
     except BaseException:
         bpy.data.materials.remove(mat)
@@ -89,8 +98,9 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
         for img in set(bpy.data.images) - n_images:
             bpy.data.images.remove(img)
         raise
-    render_paths.link_surface(tree, svm, osl, tree.nodes["Material Output"], eevee_socket=fitted if use_table else None)
+    render_paths.link_surface(tree, svm, osl, tree.nodes["Material Output"], eevee_socket=eevee)
     mat["tabulated_svm"] = "table" if use_table else "fit"
+    mat["tabulated_eevee"] = "table" if ee_table else "fit"
     mat.cycles.use_bump_map_correction = False
     mat["scratch_addon_kind"] = kind
     mat["tabulated_res"] = int(brdf.res)

@@ -847,6 +847,40 @@ def svm_uses_albedo(tb: ClosureTables) -> bool:
     return bool(1.0 / lobe_albedo(np.cos(np.radians(80.0)), tb.alpha) - 1.0 > SVM_ALBEDO_TOL)
 
 
+#: texels per axis of the SVM graph's view guide (``svm_view_guide``): x(a) is sampled every (a_{n-1} - a_0) / 4095
+#: (0.042° for ±85°), exact at every sample and at both ends; between samples its linear interpolation misses
+#: x(a) only in the sample interval around a node (a kink), by at most Δ/4 x the jump of the slope there
+#: (``svm_view_guide_error``).
+SVM_VIEW_GUIDE = 4096
+
+
+def svm_view_guide(nodes, texels: int = SVM_VIEW_GUIDE):
+    """The graph's guide of the view-grid pick on one axis: (x (texels,), scale, offset).  ``x[i]`` is the
+    continuous node index of the angle a_i = a_0 + i (a_{n-1} - a_0) / (texels - 1) (piecewise linear between
+    the increasing ``nodes``, radians: x(a_k) = k); the graph looks it up Linear / EXTEND at u = a scale +
+    offset, which puts a_0 and a_{n-1} on the first and last texel centres: the clamp beyond the outermost
+    nodes is the image's EXTEND, exactly ``view_taps``' clamp."""
+    nodes = np.asarray(nodes, np.float64)
+    G = int(texels)
+    a = nodes[0] + np.arange(G) * ((nodes[-1] - nodes[0]) / (G - 1))
+    x = np.interp(a, nodes, np.arange(len(nodes), dtype=np.float64))
+    scale = (G - 1.0) / (G * (nodes[-1] - nodes[0]))
+    return x, scale, 0.5 / G - nodes[0] * scale
+
+
+def svm_view_guide_error(nodes, texels: int = SVM_VIEW_GUIDE) -> float:
+    """Bound of |x_guide(a) - x(a)| (node-index units = interpolation weight) over all a: in the sample
+    interval around node k, Δ/4 x |slope jump| (slopes 1 / (a_{k+1} - a_k)); when several nodes share a
+    sample interval, the interval's own error (Δ x the largest slope, a crude bound)."""
+    nodes = np.asarray(nodes, np.float64)
+    d = (nodes[-1] - nodes[0]) / (texels - 1)
+    slope = 1.0 / np.diff(nodes)
+    jump = np.abs(np.diff(slope))
+    if len(nodes) > 2 and np.min(np.diff(nodes)) < d:
+        return float(d * slope.max())
+    return float(0.25 * d * jump.max()) if len(jump) else 0.0
+
+
 def svm_images(tb: ClosureTables) -> dict:
     """Float32 RGBA arrays (rows, cols, 4), row 0 at the bottom (Blender's pixel order), of the node graph:
 
@@ -856,7 +890,10 @@ def svm_images(tb: ClosureTables) -> dict:
     - ``"F"`` (n_o (res+2), res+2): tile o = rows [o (res+2), (o+1)(res+2)), texel (o (res+2) + 1 + a, 1 + b)
       = RGB F[a res + b, o] (ωi cell a along s, b along t), bordered by a copy of its edge texels so that
       a Linear lookup at ((1 + ck + h_t) / (res+2), (o (res+2) + 1 + rk + h_s) / H) is the clamped bilinear
-      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile."""
+      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile;
+    - ``"V"`` (view grids only; 2, ``SVM_VIEW_GUIDE``): row 0 R = the guide x(a) of ``view_a``, row 1 G = that of
+      ``view_b`` (``svm_view_guide``; read Linear at heights 1/4 and 3/4, the rows' centres, the sum of the two
+      colours is (xa, xb, 0)); other channels 0."""
     res, n_o, D = tb.res, tb.n_o, tb.res * tb.res
     cdf = tb.cdf.astype(np.float64)
     P = np.diff(cdf, axis=1)
@@ -870,7 +907,12 @@ def svm_images(tb: ClosureTables) -> dict:
     F = np.pad(F, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
     f = np.zeros((n_o * (res + 2), res + 2, 4))
     f[..., :3] = F.reshape(n_o * (res + 2), res + 2, 3)
-    return {"A": a.astype(np.float32), "F": f.astype(np.float32)}
+    out = {"A": a.astype(np.float32), "F": f.astype(np.float32)}
+    if getattr(tb, "view_a", None) is not None:
+        v = np.zeros((2, SVM_VIEW_GUIDE, 4), np.float32)
+        v[0, :, 0], v[1, :, 1] = svm_view_guide(tb.view_a)[0], svm_view_guide(tb.view_b)[0]
+        out["V"] = v
+    return out
 
 
 def texture_closest(img, x, y) -> np.ndarray:
@@ -895,13 +937,31 @@ def texture_linear(img, x, y) -> np.ndarray:
     return ((1 - ty) * ((1 - tx) * img[y0, x0] + tx * img[y0, x1]) + ty * ((1 - tx) * img[y1, x0] + tx * img[y1, x1]))
 
 
-def svm_view_node(tb: ClosureTables, wo, u0, u1) -> np.ndarray:
+def svm_view_index(tb: ClosureTables, wo, images: dict | None = None) -> np.ndarray:
+    """View grids: the graph's continuous node indices (xa, xb) (N, 2) of views ``wo`` (N, 3): the projected
+    angles a = atan2(ωx, ωz), b = atan2(ωy, ωz) mapped to the guide coordinate (``svm_view_guide``) and read
+    by Cycles' Linear rule from the ``"V"`` image (row 0 R, row 1 G)."""
+    V = (svm_images(tb) if images is None else images)["V"]
+    ab = np.stack([np.arctan2(wo[:, 0], wo[:, 2]), np.arctan2(wo[:, 1], wo[:, 2])], -1).astype(np.float32)
+    out = []
+    for k, nodes in enumerate((tb.view_a, tb.view_b)):
+        _, scale, offset = svm_view_guide(nodes)
+        u = ab[:, k] * np.float32(scale) + np.float32(offset)
+        out.append(texture_linear(V, u, np.full(len(wo), 0.25 + 0.5 * k))[:, k])
+    return np.stack(out, -1)
+
+
+def svm_view_node(tb: ClosureTables, wo, u0, u1, images: dict | None = None) -> np.ndarray:
     """The graph's ωo node (N,) for views ``wo`` (N, 3) (surface frame) and uniforms u0, u1: a node with
     probability equal to its interpolation weight (``_view_taps``), drawn as floor(x + u) per axis.
     Isotropic: x = clamp(θo / (π / 2 n_o) - 1/2, 0, n_o - 1), o = floor(x + u0).  Anisotropic: the
     hemi-octahedral (s, t) of ωo (|ωx| + |ωy| = max(|ωx + ωy|, |ωx - ωy|)), (xr, xc) = clamp((s, t) + 1) res / 2
     - 1/2, 0, res - 1), o = floor(xr + u0) res + floor(xc + u1): row and column drawn independently, so
-    each of the four bilinear taps has its bilinear weight."""
+    each of the four bilinear taps has its bilinear weight.  View grids: (xa, xb) from the guide image
+    (``svm_view_index``), o = floor(xa + u0) NB + floor(xb + u1)."""
+    if getattr(tb, "view_a", None) is not None:
+        x = svm_view_index(tb, wo, images)
+        return np.floor(x[:, 0] + u0).astype(np.int64) * len(tb.view_b) + np.floor(x[:, 1] + u1).astype(np.int64)
     if tb.iso:
         th = np.arccos(np.clip(wo[:, 2], -1.0, 1.0))
         x = np.clip((th / (0.5 * np.pi / tb.n_o) - 0.5) / (tb.n_o - 1.0), 0.0, 1.0)
@@ -943,7 +1003,7 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     images = svm_images(tb) if images is None else images
     res, n_o, cell = tb.res, tb.n_o, 2.0 / tb.res
     Z = tb.extent if tb.half else 1.0
-    o = svm_view_node(tb, wo, u[:, 0], u[:, 1])
+    o = svm_view_node(tb, wo, u[:, 0], u[:, 1], images)
     k, invP = svm_alias_pick(images, o, u[:, 2])
     rk = np.floor((k + 0.5) / res)
     ck = k - res * rk
@@ -984,4 +1044,5 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
 
 
 __all__ += ["alias_tables", "alias_pmf", "svm_constant", "svm_uses_albedo", "SVM_ALBEDO_TOL", "svm_images", "texture_closest", "texture_linear",
-            "svm_view_node", "svm_alias_pick", "sample_alias"]
+            "svm_view_node", "svm_alias_pick", "sample_alias", "SVM_VIEW_GUIDE", "svm_view_guide",
+            "svm_view_guide_error", "svm_view_index"]

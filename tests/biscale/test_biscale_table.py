@@ -111,13 +111,12 @@ def test_bake_operator_makes_the_table_by_default(addon, scene):
         assert not m.cycles.use_bump_map_correction
         switch = m.node_tree.nodes["Scratch Render Path"]
         assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
-        # Cycles SVM: the fitted closures -- the bake's table is on a view grid (events on nodes), which the SVM
-        # table graph does not read (``tabulated_svm.fits``)
-        assert m["tabulated_svm"] == "fit"
+        # Cycles SVM: the table graph reads the bake's view grid (events on nodes) through its guide image
+        assert m["tabulated_svm"] == "table"
         svm_src = switch.inputs[1].links[0].from_node
-        assert not (svm_src.bl_idname == "ShaderNodeGroup" and svm_src.node_tree.name.startswith("Scratch: Tabulated BRDF "))
+        assert svm_src.bl_idname == "ShaderNodeGroup" and svm_src.node_tree.name.startswith("Scratch: Tabulated BRDF ")
         eevee = m.node_tree.nodes["Material Output (EEVEE)"].inputs["Surface"].links[0].from_node
-        assert eevee.bl_idname == "ShaderNodeAddShader"   # EEVEE: the fitted twin
+        assert eevee.node_tree.name.endswith(" EEVEE") and m["tabulated_eevee"] == "table"   # EEVEE: the table graph
         n_mat = len(bpy.data.materials)
         with pytest.raises(RuntimeError, match="Direction Resolution.*at most 19"):   # the panel's name
             bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=24)

@@ -26,11 +26,13 @@ def tables():
          "iso": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(), 12, iso=True, n_theta=12),
          "half": tb.TabulatedBRDF.from_function(aniso_brdf, 10, sub=2, half=True, extent=0.8),
          "iso_half": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(alpha=0.08, kd=(0, 0, 0)), 12, iso=True,
-                                                    n_theta=12, sub=3, half=True, extent=0.5)}
+                                                    n_theta=12, sub=3, half=True, extent=0.5),
+         "view": tb.TabulatedBRDF.from_function(aniso_brdf, 10, view_a=tb.view_grid_nodes(13, [0.4]),
+                                                view_b=tb.view_grid_nodes(9))}
     return {k: (b, tb.closure_tables(b)) for k, b in B.items()}
 
 
-KINDS = ["aniso", "iso", "half", "iso_half"]
+KINDS = ["aniso", "iso", "half", "iso_half", "view"]
 
 
 def _unit(v):
@@ -81,7 +83,8 @@ def _chi2_pvalue(T, wo, wo_sampled, n=40000, seed=0, nt=10, npf=20):
 
 @pytest.mark.parametrize("kind, wo", [("aniso", (0.45, 0.2, 0.8)), ("aniso", (-0.9, 0.1, 0.3)),
                                       ("iso", (0.3, -0.5, 0.7)), ("iso", (0.95, 0.05, 0.1)),
-                                      ("half", (0.3, 0.4, 0.7)), ("iso_half", (-0.5, 0.2, 0.6))])
+                                      ("half", (0.3, 0.4, 0.7)), ("iso_half", (-0.5, 0.2, 0.6)),
+                                      ("view", (0.45, 0.2, 0.8)), ("view", (-0.9, 0.1, 0.3))])
 def test_graph_targets_follow_the_closure_density(tables, kind, wo):
     """Off-node views (the ωo node drawn floor(x + h) per axis, the bin by the alias table): the targets of
     ``sample_alias`` follow ``pdf``, the density of the OSL closure's ``sample`` (p > 1e-3, 200 bins, 40k
@@ -109,6 +112,42 @@ def test_view_node_has_its_interpolation_weight(tables, kind):
         np.add.at(want, taps[0], w[0])
         got = np.bincount(o, minlength=T.n_o) / n
         assert np.all(np.abs(got - want) <= 4.5 * np.sqrt(want * (1 - want) / n) + 1e-12), (wo, got[want > 0], want[want > 0])
+
+
+def _taps_index(wo, va, vb):
+    """The continuous node indices (xa, xb) (N, 2) of ``view_taps`` (the OSL shader's and ``eval``'s weights):
+    x = i0 + weight of i0 + 1 per axis."""
+    idx, w = tb.view_taps(wo, va, vb)
+    nb = len(vb)
+    return np.stack([idx[:, 0] // nb + w[:, 2] + w[:, 3], idx[:, 0] % nb + w[:, 1] + w[:, 3]], -1)
+
+
+def test_view_guide_pick_has_the_view_taps_weights():
+    """View grids: the graph draws node k of an axis with probability max(0, 1 - |x - k|) (floor(x + h)), x the
+    guide's continuous index (``svm_view_index``: Linear lookup of a 4096-texel guide of x(a)); ``view_taps``
+    gives node k the weight max(0, 1 - |x_true - k|).  So the weights equal in expectation up to |x - x_true|:
+    over views sweeping both angles across ±89° (nodes, 1e-7 rad either side of them, and 20k random views),
+    |x - x_true| stays within ``svm_view_guide_error`` (+ 2e-5 for float32 angles) for a bi-scale-like grid
+    (19 nodes over ±85°, four events, two 0.05 rad apart; bound 2.7e-3, at a kink only) and for an uneven
+    user grid; the guide of the same number of evenly spaced nodes (the events ignored) misses by > 0.1."""
+    rng = np.random.default_rng(5)
+    ev = tb.view_grid_nodes(19, events=[-0.6458, 0.3, 0.35, 0.6458])
+    grids = [(ev, tb.view_grid_nodes(19, events=[0.2])), (np.array([-1.2, -0.3, 0.0, 0.05, 0.9, 1.1]), ev)]
+    for va, vb in grids:
+        T = tb.ClosureTables(np.zeros((4, len(va) * len(vb), 3), np.float32), np.tile(np.linspace(0, 1, 5), (len(va) * len(vb), 1)),
+                             2, False, 0.01, view_a=va, view_b=vb)
+        a = np.concatenate([va, va + 1e-7, va - 1e-7, np.linspace(-1.553, 1.553, 4001), rng.uniform(-1.56, 1.56, 20000)])
+        b = np.concatenate([vb, vb - 1e-7, vb + 1e-7, np.linspace(1.553, -1.553, 4001), rng.uniform(-1.56, 1.56, 20000)])
+        n = min(len(a), len(b))
+        wo = _unit(np.stack([np.tan(a[:n]), np.tan(b[:n]), np.ones(n)], -1))
+        got, want = tb.svm_view_index(T, wo), _taps_index(wo, va, vb)
+        for k, nodes in enumerate((va, vb)):
+            bound = tb.svm_view_guide_error(nodes) + 2e-5
+            assert np.abs(got[:, k] - want[:, k]).max() <= bound, (k, np.abs(got[:, k] - want[:, k]).max(), bound)
+    assert tb.svm_view_guide_error(ev) < 3e-3
+    wrong = tb.svm_images(tb.ClosureTables(T.F, T.cdf, 2, False, 0.01, view_a=np.linspace(va[0], va[-1], len(va)),
+                                           view_b=np.linspace(vb[0], vb[-1], len(vb))))
+    assert np.abs(tb.svm_view_index(T, wo, wrong) - want).max() > 0.1
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -216,10 +255,11 @@ def test_packed_images_read_back_at_the_graphs_texels(addon, scene, ts, tables):
     of the same table shares the group and the images."""
     import bpy
 
-    for kind in ("aniso", "iso_half"):
+    for kind in ("aniso", "iso_half", "view"):
         _, T = tables[kind]
         arr = tb.svm_images(T)
         imgs = ts.images(T)
+        assert sorted(imgs) == sorted(arr) and ("V" in imgs) == (kind == "view")
         for key, img in imgs.items():
             assert img.packed_file is not None and img.colorspace_settings.is_data
             img.reload()
@@ -262,26 +302,28 @@ def _group_material(name, group):
 
 @pytest.mark.render
 @pytest.mark.bpy
-def test_svm_furnace_matches_the_albedo_at_three_views(addon, scene, ts, tm, render_dir, tables, capsys):
+@pytest.mark.parametrize("kind", ["aniso", "view"])
+def test_svm_furnace_matches_the_albedo_at_three_views(addon, scene, ts, tm, render_dir, tables, capsys, kind):
     """Cycles SVM (the default shading system), white world, orthographic views along +x, -x and +y at 50°:
-    the image mean of ``make_tabulated_material`` is the anisotropic table's directional albedo.  32x32 px x
-    32 spp = 32k samples, per-sample relative std < 0.6 (numpy twin) -> standard error < 0.35 %; tolerance
-    1.5 % (measured 0.1-0.5 %).  The albedos of the three views differ by > 8 %; the graphs with the wrong
-    view node or without the alias step miss by more than 1.5 % at some view."""
+    the image mean of ``make_tabulated_material`` is the anisotropic table's directional albedo (on the
+    hemi-octahedral view nodes and on a view grid).  32x32 px x 32 spp = 32k samples, per-sample relative
+    std < 0.6 (numpy twin) -> standard error < 0.35 %; tolerance 1.5 % (measured 0.1-0.5 %).  The albedos of
+    the three views differ by > 8 %; the graphs with the wrong view node or without the alias step miss by
+    more than 1.5 % at some view."""
     import bpy
 
-    B, T = tables["aniso"]
+    B, T = tables[kind]
     th = math.radians(50)
     views = [np.array([math.sin(th), 0, math.cos(th)]), np.array([-math.sin(th), 0, math.cos(th)]),
              np.array([0, math.sin(th), math.cos(th)])]
     alb = B.albedo(np.array(views), 96, 192)
     assert np.abs(alb[0] - alb[1]).max() > 0.08 and np.abs(alb[0] - alb[2]).max() > 0.08
-    m = tm.make_tabulated_material(B, "tab svm furnace")
+    m = tm.make_tabulated_material(B, f"tab svm furnace {kind}")
     assert m["tabulated_svm"] == "table"
     sc = bpy.context.scene
     addon.render.uniform_world(sc, 1.0)
     plane = addon.render.add_plane(sc, size=6.0, material=m)
-    broken = {b: _group_material(f"broken {b}", ts.ensure(T, _break=b)) for b in ("view", "alias")}
+    broken = {b: _group_material(f"broken {b} {kind}", ts.ensure(T, _break=b)) for b in ("view", "alias")}
     errs = {b: [] for b in broken}
     for wo, a in zip(views, alb):
         _ortho(addon, sc, wo, 32)
@@ -289,7 +331,7 @@ def test_svm_furnace_matches_the_albedo_at_three_views(addon, scene, ts, tm, ren
         img, _ = addon.render.render_array(sc, str(render_dir))
         got = img.reshape(-1, 3).mean(0)
         with capsys.disabled():
-            print(f"\n[tabulated svm] view {wo.round(2)}: {got} vs albedo {a}")
+            print(f"\n[tabulated svm {kind}] view {wo.round(2)}: {got} vs albedo {a}")
         np.testing.assert_allclose(got, a, rtol=0.015, err_msg=str(wo))
         for b, mb in broken.items():
             plane.data.materials[0] = mb
@@ -393,7 +435,8 @@ def test_merl_file_renders_like_its_analytic_brdf_on_svm(addon, scene, ts, rende
 @pytest.mark.bpy
 def test_material_wiring_and_fallbacks(addon, scene, tm, tables):
     """Cycles output: render-path switch between the table graph (SVM) and the OSL script; EEVEE output: the
-    fitted twin; ``svm_table=False`` keeps the fitted twin on SVM; describe() says what renders."""
+    graph's EEVEE variant (``eevee_table=False``: the fitted twin); ``svm_table=False`` keeps the fitted twin on
+    SVM and EEVEE; describe() says what renders."""
     import bpy
 
     rp = importlib.import_module(addon.__name__ + ".render_paths")
@@ -404,16 +447,22 @@ def test_material_wiring_and_fallbacks(addon, scene, tm, tables):
     assert mix.inputs[1].links[0].from_node.node_tree.name.startswith("Scratch: Tabulated BRDF ")
     assert mix.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
     ee = tree.nodes[rp.EEVEE_OUTPUT_NAME].inputs["Surface"].links[0].from_node
-    assert ee.bl_idname == "ShaderNodeAddShader"            # Diffuse + Glossy fit
+    assert ee.node_tree.name.startswith("Scratch: Tabulated BRDF ") and ee.node_tree.name.endswith(" EEVEE")
+    assert m["tabulated_eevee"] == "table" and not any(n.bl_idname == "ShaderNodeAddShader" for n in tree.nodes)
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     sc.cycles.shading_system = False
     icon, line = rp.describe(m, sc)
     assert icon == "CHECKMARK" and "node groups" in line and "tabulated" in line
     sc.render.engine = "BLENDER_EEVEE"
-    assert "fitted" in rp.describe(m, sc)[1]
+    icon, line = rp.describe(m, sc)
+    assert icon == "CHECKMARK" and "tabulated BRDF as node groups" in line
+    e = tm.make_tabulated_material(B, "fit in eevee", eevee_table=False)
+    assert e["tabulated_eevee"] == "fit" and e["tabulated_svm"] == "table"
+    assert e.node_tree.nodes[rp.EEVEE_OUTPUT_NAME].inputs["Surface"].links[0].from_node.bl_idname == "ShaderNodeAddShader"
+    assert "fitted" in rp.describe(e, sc)[1]
     f = tm.make_tabulated_material(B, "fit only", svm_table=False)
-    assert f["tabulated_svm"] == "fit"
+    assert f["tabulated_svm"] == "fit" and f["tabulated_eevee"] == "fit"
     assert tree.nodes[rp.SWITCH_NAME].inputs[1].links[0].from_node.bl_idname == "ShaderNodeGroup"
     assert f.node_tree.nodes[rp.SWITCH_NAME].inputs[1].links[0].from_node.bl_idname == "ShaderNodeAddShader"
     sc.render.engine = "CYCLES"
@@ -421,11 +470,79 @@ def test_material_wiring_and_fallbacks(addon, scene, tm, tables):
 
 
 @pytest.mark.bpy
-def test_view_grid_tables_keep_the_fitted_twin(ts):
-    """The graph picks its ωo node on the default grid (uniform θo / hemi-octahedral); a table on a view grid
-    (``view_a`` / ``view_b``: the bi-scale bake's default since issue 16's view events) must not be read with it."""
-    svm = ts
+def test_view_grid_tables_render_the_table_graph(ts):
+    """Tables on a view grid (``view_a`` / ``view_b``: the bi-scale bake's default) are drawn by the graph
+    (``fits``), and their group is keyed by the view nodes too: the same F and CDF on other view nodes is
+    another group (it reads another guide)."""
     f = lambda wi, wo: np.full(wi.shape[:-1] + (3,), 0.2)
-    plain = tb.TabulatedBRDF.from_function(f, 6)
-    grid = tb.TabulatedBRDF.from_function(f, 6, view_a=tb.view_grid_nodes(7, events=(0.3,)), view_b=tb.view_grid_nodes(7))
-    assert svm.fits(tb.closure_tables(plain)) and not svm.fits(tb.closure_tables(grid))
+    plain = tb.closure_tables(tb.TabulatedBRDF.from_function(f, 6))
+    grid = tb.closure_tables(tb.TabulatedBRDF.from_function(f, 6, view_a=tb.view_grid_nodes(7, events=(0.3,)),
+                                                             view_b=tb.view_grid_nodes(7)))
+    other = tb.ClosureTables(grid.F, grid.cdf, grid.res, False, grid.alpha, view_a=tb.view_grid_nodes(7),
+                             view_b=grid.view_b)
+    assert ts.fits(plain) and ts.fits(grid)
+    assert ts.table_hash(grid) != ts.table_hash(other) and ts.ensure(grid) != ts.ensure(other)
+
+
+@pytest.mark.render
+@pytest.mark.bpy
+def test_eevee_renders_the_table_like_cycles(addon, scene, ts, tm, render_dir, tables, capsys):
+    """EEVEE (the default engine) renders the table graph's EEVEE variant (the atlas read by four Closest lookups):
+    white furnace at 50° (the view-grid table; EEVEE compiles each material's shader in software here, ~25 s
+    each, so one table), 16² px x 32 samples: image mean = the directional albedo
+    within 1.5 % (measured 0.2-0.6 % at 32² x 64; EEVEE's own GGX Glossy of colour 1 renders 0.7 % dark here;
+    pixel std 3.4 % of the mean at 32 samples, 256 pixels -> standard error 0.2 %); the Cycles variant (one
+    Linear lookup: EEVEE picks a mip level from the per-pixel jumps of its coordinate) misses by > 3 % (measured
+    6 / 11 %).  Studio world + area lamp, 16² px, EEVEE 64 samples vs Cycles SVM 1024 spp: within 5 % (measured
+    at 32² px, two views: +1.6 / +1.5 % (view-grid table), aniso table -1.0 / +3.8 %, at 128 EEVEE samples -3.6 /
+    -1.1 %: the lamp, found by a narrow lobe, makes EEVEE's frame mean vary by ~3 % between sample counts), while
+    the fitted twin misses by > 10 % (measured 46 %).  (EEVEE renders the table under the lamp ~12x slower than
+    the fitted twin in software GL here: 60-70 s at 32² px x 64 samples, hence 16² px and one view.)"""
+    import bpy
+
+    rp = importlib.import_module(addon.__name__ + ".render_paths")
+    r = addon.render
+    sc = bpy.context.scene
+    th = math.radians(50)
+    wo = np.array([math.sin(th), 0, math.cos(th)])
+    plane = r.add_plane(sc, size=6.0)
+    r.uniform_world(sc, 1.0)
+    _ortho(addon, sc, wo, 64, res=16)
+    for kind in ("view",):
+        B, T = tables[kind]
+        alb = B.albedo(wo[None], 96, 192)[0]
+        m = tm.make_tabulated_material(B, f"eevee {kind}")
+        cyc = _group_material(f"eevee cycles variant {kind}", ts.ensure(T))
+        got = {}
+        for key, mat in (("table", m), ("cycles variant", cyc)):
+            plane.data.materials.clear()
+            plane.data.materials.append(mat)
+            sc.render.engine = "BLENDER_EEVEE"
+            sc.eevee.taa_render_samples = 32
+            img, _ = r.render_array(sc, str(render_dir), name="eevee")
+            got[key] = img.reshape(-1, 3).mean(0)
+        with capsys.disabled():
+            print(f"\n[tabulated eevee] furnace {kind}: EEVEE {got['table'] / alb} x albedo, Cycles variant "
+                  f"{got['cycles variant'] / alb}")
+        np.testing.assert_allclose(got["table"], alb, rtol=0.015)
+        assert np.abs(got["cycles variant"] / alb - 1).max() > 0.03
+    f = tm.make_tabulated_material(B, "eevee lamp fit", eevee_table=False)
+    r.studio_world(sc, 1.0)
+    r.add_light(sc, "AREA", location=(1.5, -1.0, 2.5), energy=200.0, size=1.0)
+    fit_err = []
+    for wo in _unit(np.array([[0.6, -0.2, 0.8]])):
+        _ortho(addon, sc, wo, 1024, res=16)
+        got = {}
+        for key, mat, eng in (("cycles", m, "CYCLES"), ("eevee", m, "BLENDER_EEVEE"), ("fit", f, "BLENDER_EEVEE")):
+            plane.data.materials.clear()
+            plane.data.materials.append(mat)
+            sc.render.engine = eng
+            sc.eevee.taa_render_samples = 64
+            img, _ = r.render_array(sc, str(render_dir), name=key)
+            got[key] = img.reshape(-1, 3).mean(0)
+        with capsys.disabled():
+            print(f"[tabulated eevee] lamp view {wo.round(2)}: EEVEE / Cycles {got['eevee'] / got['cycles']}, "
+                  f"fitted twin / Cycles {got['fit'] / got['cycles']}")
+        np.testing.assert_allclose(got["eevee"], got["cycles"], rtol=0.05)
+        fit_err.append(float(np.abs(got["fit"] / got["cycles"] - 1).max()))
+    assert max(fit_err) > 0.1, fit_err
