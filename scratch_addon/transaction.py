@@ -51,14 +51,30 @@ def _plain(value):
         return value
 
 
+#: RNA type -> identifiers of its writable, non-collection properties (walking ``bl_rna.properties`` is most of
+#: a snapshot's cost: a live table edit snapshots ~400 nodes; keyed with the property count, which changes when
+#: an add-on registers properties on the type)
+_PROP_IDS: dict = {}
+
+
+def _prop_ids(rna) -> tuple:
+    props = rna.properties
+    key = (rna.identifier, len(props))
+    ids = _PROP_IDS.get(key)
+    if ids is None:
+        ids = _PROP_IDS[key] = tuple(
+            p.identifier for p in props
+            if not (p.is_readonly or p.type == "COLLECTION" or p.identifier in _SKIP_PROPS
+                    or p.identifier.startswith("bl_")))
+    return ids
+
+
 def _rna_props(struct) -> dict:
     """Writable, non-collection RNA properties of ``struct`` (settings and pointers) by identifier."""
     out = {}
-    for p in struct.bl_rna.properties:
-        if p.is_readonly or p.type == "COLLECTION" or p.identifier in _SKIP_PROPS or p.identifier.startswith("bl_"):
-            continue
+    for identifier in _prop_ids(struct.bl_rna):
         try:
-            out[p.identifier] = _plain(getattr(struct, p.identifier))
+            out[identifier] = _plain(getattr(struct, identifier))
         except (AttributeError, TypeError):
             continue
     return out

@@ -650,7 +650,8 @@ def main(argv=None) -> int:
 
     rec.run("merl", merl, needs=SCENE + INST)
     renders_for("merl", "Probe merl", ("merl",))
-    # merl_vs_diffuse runs once the tabulated closure's smooth floor lands (today: 0.79x at 8 spp, point-light noise)
+    for pk in paths:
+        rec.run(f"merl_vs_diffuse:{pk}", merl_vs_diffuse(pk), needs=("merl", "references"))
 
     # -- Bi-scale: a tile, one slot with the artist's own Principled material, baked onto a probe
     def biscale_tile(d):
