@@ -32,9 +32,46 @@ def cpu_seconds() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def main(argv: list[str]) -> int:
+def glossy(wi, wo):
+    """The cost scenes' analytic BRDF (1/sr): GGX α 0.2 x 0.8 + Lambert (0.1, 0.15, 0.2); ``wi``, ``wo`` (N, 3)."""
     import numpy as np
 
+    from scratch_materials.precompute.tables import tabulated_brdf as tb
+
+    return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
+
+
+def baseline_material():
+    """Every cost ratio's baseline: Cycles' SVM anisotropic Glossy (GGX, roughness 0.45, anisotropy 0.8, UV tangent)."""
+    from scratch_materials.scratch_addon import materials
+
+    m = materials.new_material("SVM aniso glossy")
+    g = m.node_tree.nodes.new("ShaderNodeBsdfGlossy")
+    g.distribution = "GGX"
+    g.inputs["Roughness"].default_value = 0.45
+    g.inputs["Anisotropy"].default_value = 0.8
+    tan = m.node_tree.nodes.new("ShaderNodeTangent")
+    tan.direction_type = "UV_MAP"
+    m.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
+    m.node_tree.links.new(g.outputs["BSDF"], m.node_tree.nodes["Material Output"].inputs["Surface"])
+    return m
+
+
+def cost_scene(make=None):
+    """The whole-frame scene: studio world + an area lamp, a UV sphere (radius 1) filling an orthographic view
+    (every pixel hits it), carrying ``make()`` (called after the scene reset, which removes every material);
+    returns (scene, sphere)."""
+    from scratch_materials.scratch_addon import render
+
+    scene = render.reset_scene()
+    render.studio_world(scene, 1.0)
+    render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
+    sphere = render.add_sphere(scene, radius=1.0, material=None if make is None else make())
+    render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)
+    return scene, sphere
+
+
+def main(argv: list[str]) -> int:
     from bench._util import blender, report
 
     ap = argparse.ArgumentParser(prog="bench tabulated_cost")
@@ -56,26 +93,10 @@ def main(argv: list[str]) -> int:
     from scratch_materials.precompute.microgeometry.ndf import filtered_ndf
     from scratch_materials.precompute.tables import merl
     from scratch_materials.precompute.tables import tabulated_brdf as tb
-    from scratch_materials.scratch_addon import materials, merl_ops, render, tabulated_material
+    from scratch_materials.scratch_addon import merl_ops, render, tabulated_material
 
-    scene = render.reset_scene()
-    render.studio_world(scene, 1.0)
-    render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
-    sphere = render.add_sphere(scene, radius=1.0)
-    render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)   # every pixel hits it
-
-    def glossy(wi, wo):
-        return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
-
-    svm = materials.new_material("SVM aniso glossy")
-    g = svm.node_tree.nodes.new("ShaderNodeBsdfGlossy")
-    g.distribution = "GGX"
-    g.inputs["Roughness"].default_value = 0.45
-    g.inputs["Anisotropy"].default_value = 0.8
-    tan = svm.node_tree.nodes.new("ShaderNodeTangent")
-    tan.direction_type = "UV_MAP"
-    svm.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
-    svm.node_tree.links.new(g.outputs["BSDF"], svm.node_tree.nodes["Material Output"].inputs["Surface"])
+    scene, sphere = cost_scene()
+    svm = baseline_material()
     tmp = tempfile.mkdtemp()
     merl_path = os.path.join(tmp, "ggx.binary")
     merl.write_merl(merl_path, merl.tabulate(glossy))
@@ -130,30 +151,13 @@ def main(argv: list[str]) -> int:
 # ----------------------------------------------------------------------------- load-free: callgrind
 def _callgrind_setups():
     """(name, factory() -> material) of the callgrind set-ups: the baseline and the SVM table graphs."""
-    import numpy as np
-
     from scratch_materials.precompute.tables import tabulated_brdf as tb
-    from scratch_materials.scratch_addon import materials, tabulated_material
-
-    def glossy(wi, wo):
-        return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
-
-    def baseline():
-        m = materials.new_material("SVM aniso glossy")
-        g = m.node_tree.nodes.new("ShaderNodeBsdfGlossy")
-        g.distribution = "GGX"
-        g.inputs["Roughness"].default_value = 0.45
-        g.inputs["Anisotropy"].default_value = 0.8
-        tan = m.node_tree.nodes.new("ShaderNodeTangent")
-        tan.direction_type = "UV_MAP"
-        m.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
-        m.node_tree.links.new(g.outputs["BSDF"], m.node_tree.nodes["Material Output"].inputs["Surface"])
-        return m
+    from scratch_materials.scratch_addon import tabulated_material
 
     def table(**kw):
         return lambda: tabulated_material.make_tabulated_material(tb.TabulatedBRDF.from_function(glossy, **kw), "t")
     vg = tb.view_grid_nodes(19, events=(-0.6458, 0.6458))
-    return [("SVM aniso Glossy", baseline), ("SVM table aniso 10²x10²", table(res=10)),
+    return [("SVM aniso Glossy", baseline_material), ("SVM table aniso 10²x10²", table(res=10)),
             ("SVM table iso 32²x32", table(res=32, iso=True, n_theta=32)),
             ("SVM table view grid 19² x 19x19 (bi-scale size)", table(res=19, view_a=vg, view_b=tb.view_grid_nodes(19)))]
 
@@ -177,11 +181,7 @@ def callgrind_main(res: int = 32, spp: int = 4, jobs: int = 2, only: str = "") -
         if only and i and only not in name:
             continue
         bpy.ops.wm.read_homefile(use_empty=True)
-        scene = render.reset_scene()
-        render.studio_world(scene, 1.0)
-        render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
-        render.add_sphere(scene, radius=1.0, material=make())
-        render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)
+        scene, _ = cost_scene(make)
         render.configure_cycles(scene, samples=spp, res=(res, res), seed=0, threads=1)
         path = os.path.join(folder, f"setup{i}.blend")
         bpy.ops.wm.save_as_mainfile(filepath=path, compress=False)

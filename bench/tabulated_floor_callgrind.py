@@ -23,31 +23,14 @@ NAMES = ["SVM aniso Glossy", "table, floor", "table, no floor"]
 
 
 def _child(n: int) -> int:
-    import numpy as np
-
     from bench._util import blender
     blender()
+    from bench.tabulated_cost import baseline_material, cost_scene, glossy
     from scratch_materials.precompute.tables import tabulated_brdf as tb
-    from scratch_materials.scratch_addon import materials, render, tabulated_material
+    from scratch_materials.scratch_addon import render, tabulated_material
 
-    scene = render.reset_scene()
-    render.studio_world(scene, 1.0)
-    render.add_light(scene, "AREA", location=(2.0, -2.0, 3.0), energy=300.0, size=1.0)
-    sphere = render.add_sphere(scene, radius=1.0)
-    render.add_camera(scene, location=(0.0, -3.0, 3.0), target=(0, 0, 0), ortho_scale=1.3)
-
-    def glossy(wi, wo):
-        return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + np.array([0.1, 0.15, 0.2]) / np.pi
-
-    svm = materials.new_material("SVM aniso glossy")
-    g = svm.node_tree.nodes.new("ShaderNodeBsdfGlossy")
-    g.distribution = "GGX"
-    g.inputs["Roughness"].default_value = 0.45
-    g.inputs["Anisotropy"].default_value = 0.8
-    tan = svm.node_tree.nodes.new("ShaderNodeTangent")
-    tan.direction_type = "UV_MAP"
-    svm.node_tree.links.new(tan.outputs["Tangent"], g.inputs["Tangent"])
-    svm.node_tree.links.new(g.outputs["BSDF"], svm.node_tree.nodes["Material Output"].inputs["Surface"])
+    scene, sphere = cost_scene()
+    svm = baseline_material()
     tmp = tempfile.mkdtemp()
     brdf = tb.TabulatedBRDF.from_function(glossy, 16, iso=True, n_theta=16)     # small: numpy is slow under valgrind
     mats = {NAMES[0]: svm, NAMES[1]: tabulated_material.make_tabulated_material(brdf, "floor"),

@@ -568,11 +568,17 @@ def main(argv=None) -> int:
         """Largest absolute pixel difference of two renders (the same seed renders a material identically)."""
         return float(np.abs(a[..., :3] - b[..., :3]).max())
 
-    def live_socket(d):
-        obj = bpy.data.objects[live_probe]
-        mat = obj.active_material
-        before = sc.render(live_probe, "cycles_svm", "live_socket_before")
-        s = mat.scratch
+    def edit_changes_render(d, tag: str, edit) -> None:
+        """Render the live probe, ``edit(settings, material, d)`` (panel values only, no operator), render again:
+        the render must change."""
+        mat = bpy.data.objects[live_probe].active_material
+        before = sc.render(live_probe, "cycles_svm", f"live_{tag}_before")
+        edit(mat.scratch, mat, d)
+        after = sc.render(live_probe, "cycles_svm", f"live_{tag}_after")
+        d["max_pixel_change"] = differs(before, after)
+        check(d["max_pixel_change"] > 1e-4, f"the render did not change after the {tag} edit")
+
+    def density_edit(s, mat, d):
         d["density_before"] = s.density
         s.density = 0.05 if s.density > 0.3 else 0.9          # the panel edit, nothing else
         ctrl = next((n for n in mat.node_tree.nodes if n.name == "Scratch Controls"), None)
@@ -580,23 +586,13 @@ def main(argv=None) -> int:
         d["socket_after"] = ctrl.inputs["Density"].default_value
         check(abs(ctrl.inputs["Density"].default_value - s.density) < 1e-6,
               f"Density socket {ctrl.inputs['Density'].default_value:.4g} did not follow the panel ({s.density:.4g})")
-        after = sc.render(live_probe, "cycles_svm", "live_socket_after")
-        d["max_pixel_change"] = differs(before, after)
-        check(d["max_pixel_change"] > 1e-4, "the render did not change after the density edit")
 
-    def live_table(d):
-        obj = bpy.data.objects[live_probe]
-        mat = obj.active_material
-        s = mat.scratch
+    def profile_edit(s, mat, d):
         digest = table_digest(mat)
-        before = sc.render(live_probe, "cycles_svm", "live_table_before")
         d["profile_value_before"] = s.profile_value
         s.profile_value = s.profile_value * 2.5 if s.profile_value < 0.5 else s.profile_value * 0.4
         d["profile_value_after"] = s.profile_value
         check(table_digest(mat) != digest, "the tables (images / shader text) did not change after a profile edit")
-        after = sc.render(live_probe, "cycles_svm", "live_table_after")
-        d["max_pixel_change"] = differs(before, after)
-        check(d["max_pixel_change"] > 1e-4, "the render did not change after the profile edit")
 
     def live_keyframes(d):
         obj = bpy.data.objects[live_probe]
@@ -618,9 +614,10 @@ def main(argv=None) -> int:
         check(d["frame1_again"] < 1e-6, "frame 1 renders differently the second time")
 
     rec.run(f"preset:{UPDATE_PRESET}+live", add_preset(UPDATE_PRESET, live_probe), needs=SCENE + INST)
-    rec.run("live_socket", live_socket, needs=(f"preset:{UPDATE_PRESET}+live", "references"))
-    rec.run("live_table", live_table, needs=(f"preset:{UPDATE_PRESET}+live", "references"))
-    rec.run("live_keyframes", live_keyframes, needs=(f"preset:{UPDATE_PRESET}+live", "references"))
+    live_needs = (f"preset:{UPDATE_PRESET}+live", "references")
+    rec.run("live_socket", lambda d: edit_changes_render(d, "density", density_edit), needs=live_needs)
+    rec.run("live_table", lambda d: edit_changes_render(d, "profile", profile_edit), needs=live_needs)
+    rec.run("live_keyframes", live_keyframes, needs=live_needs)
 
     # -- Measured BRDF (issue #16): a MERL-format file of a Lambertian (albedo 0.5) renders like the grey diffuse
     merl_path = workdir / "lambert_half.binary"
