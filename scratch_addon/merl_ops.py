@@ -3,8 +3,8 @@
 
 The file is read and resampled by ``precompute.tables.merl`` onto the isotropic grid of the
 tabulated-BRDF closure; Cycles renders it exactly (OSL: ``osl/tabulated_brdf.osl``; SVM and GPU: the same
-closure as nodes, ``node_groups/tabulated_svm``), EEVEE a Diffuse+Glossy least-squares twin
-(``scratch_addon.tabulated_material``).
+closure as nodes, ``node_groups/tabulated_svm``), EEVEE the nodes' EEVEE variant (``scratch_addon.tabulated_material``;
+its smooth part as a Diffuse closure, ``tabulated_brdf.floor_split``).
 
 Headless: ``bpy.ops.scratch.import_merl(filepath="gold-metallic-paint.binary")`` with a mesh active,
 or ``material_from_merl(path)``.
@@ -46,7 +46,7 @@ def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: in
 
 class SCRATCH_OT_import_merl(bpy.types.Operator):
     """Import a measured BRDF (MERL .binary) as a material on the active object: the table itself in Cycles
-    (OSL or SVM, CPU or GPU), a fitted Diffuse + Glossy twin in EEVEE"""
+    (OSL or SVM, CPU or GPU) and EEVEE"""
 
     bl_idname = "scratch.import_merl"
     bl_label = "Import MERL BRDF"
@@ -77,7 +77,9 @@ class SCRATCH_OT_import_merl(bpy.types.Operator):
             return report_error(self, exc, {"res": "Direction Resolution", "n_theta": "View Angles",
                                             "path": "File"})
         assign_material(obj, mat)
-        self.report({"INFO"}, f"Assigned {mat.name} (SVM twin rel. L1 {mat.get('tabulated_twin_rel_l1', 0):.3f})")
+        kd = list(mat.get("tabulated_floor", (0.0, 0.0, 0.0)))
+        self.report({"INFO"}, f"Assigned {mat.name} ({mat.get('tabulated_res', 0)}² directions; smooth floor kd "
+                              f"{max(kd):.3f}; SVM: {mat.get('tabulated_svm', '?')}, EEVEE: {mat.get('tabulated_eevee', '?')})")
         return {"FINISHED"}
 
 
@@ -99,7 +101,7 @@ class SCRATCH_PT_measured_brdf(bpy.types.Panel):
         mat = context.material
         if mat is not None and "merl_source" in mat:
             layout.label(text=f"From: {mat['merl_source']} ({mat.get('tabulated_res', 0)}² directions, "
-                              f"exact in Cycles OSL)")
+                              f"the table in Cycles and EEVEE)")
 
 
 classes = (SCRATCH_OT_import_merl, SCRATCH_PT_measured_brdf)

@@ -253,7 +253,8 @@ def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
 #: that hold the GIL, so threads do not scale (``TRACE_WORKERS``) but two processes do.  The helper traces
 #: geometry (``cos_path``); its directions' Fresnel weights are computed here (``beam.path_fresnel``, bit for
 #: bit the traced ones).  Off by default (a script or a render farm gets no extra process); live edits turn it
-#: on (``scratch_addon.live``).  Any failure of the helper falls back to tracing here.
+#: on when ``scratch_addon.live.TRACE_HELPER`` is set (off: it did not pay on the shared test machine).  Any failure
+#: of the helper falls back to tracing here.
 TRACE_HELPER = False
 #: start the helper in its own session (POSIX): with the kernel's autogroup scheduling every process of a
 #: session shares one CPU share, so under load a helper in Blender's session only takes CPU from Blender
