@@ -86,12 +86,8 @@ def setups(only: str = ""):
             g = scratch_svm._G(tree)
             base = sm._base_node(tree, params)
             uv = g.node("ShaderNodeUVMap").outputs["UV"]
-            acc, accs = None, []
-            for k in range(lp.n_layers):
-                f1 = scratch_svm.layer_feature_distance(g, uv, theta_k[k], xi_k[k], (lp.length, lp.width))
-                a = g.math("LESS_THAN", f1, float(lp.density) + 1e-7)
-                acc = a if acc is None else g.math("ADD", acc, a)
-                accs.append(acc)
+            accs = scratch_svm.layer_coverage(g, uv, theta_k, xi_k, (lp.length, lp.width), float(lp.density) + 1e-7)
+            acc = accs[-1]
             glossy = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
             glossy.inputs["Roughness"].default_value = 0.05
             glossy.inputs["Anisotropy"].default_value = 0.9   # anisotropic: Cycles keeps the tangent (the pick)
@@ -101,13 +97,7 @@ def setups(only: str = ""):
                 wn = g.node("ShaderNodeTexWhiteNoise", noise_dimensions="3D")
                 g._set(wn.inputs["Vector"], geo.outputs["Position"])
                 target = g.math("MULTIPLY", wn.outputs["Value"], acc)
-                theta = float(theta_k[-1])
-                for k in range(lp.n_layers - 2, -1, -1):
-                    mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
-                    g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
-                    g._set(mix.inputs[2], theta)
-                    g._set(mix.inputs[3], float(theta_k[k]))
-                    theta = mix.outputs[0]
+                theta = scratch_svm.picked_angle(g, target, accs, theta_k)
                 rot = g.node("ShaderNodeVectorRotate", rotation_type="AXIS_ANGLE")
                 g._set(rot.inputs["Vector"], tan.outputs["Tangent"])
                 g._set(rot.inputs["Axis"], geo.outputs["Normal"])

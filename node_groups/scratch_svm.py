@@ -247,29 +247,14 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         size = (float(layers.length), float(layers.width))
         dens = controls.get("density", None)
         threshold = float(layers.density) + 1e-7 if dens is None else g.math("ADD", dens, 1e-7)
-        acc, accs = None, []
-        for k in range(layers.n_layers):
-            f1 = layer_feature_distance(g, uv, theta_k[k], xi_k[k], size, tag=f"{twin}/%s/{k}", cost_off=cost_off)
-            a = g.math("LESS_THAN", f1, threshold)  # [F1]_d, eq. 7
-            acc = a if acc is None else g.math("ADD", acc, a)
-            accs.append(acc)
-        alpha_sum = acc
+        accs = layer_coverage(g, uv, theta_k, xi_k, size, threshold, twin, cost_off)
+        alpha_sum = accs[-1]
         # layer k is picked when acc_{k-1} <= target < acc_k (probability α_k / ᾱ): from the last layer
         # back, Θ = Θ_k wherever target < acc_k (one Less Than and one Mix per layer)
         target = g.math("MULTIPLY", h_layer, alpha_sum)
         if table:
             h_frac = g.math("FRACT", target)
-        theta_sel = float(theta_k[-1])
-        for k in range(layers.n_layers - 2, -1, -1):
-            mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
-            g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
-            g._set(mix.inputs[2], theta_sel)
-            g._set(mix.inputs[3], float(theta_k[k]))
-            tags = [f"{twin}/theta3/{k}"]
-            if k == layers.n_layers - 2:   # input 2 holds the last layer's Θ
-                tags.append(f"{twin}/theta2/{k + 1}")
-            mix[LAYER_CONST] = ";".join(tags)
-            theta_sel = mix.outputs[0]
+        theta_sel = picked_angle(g, target, accs, theta_k, twin)
     # scratch frame of the picked layer: u = cos Θ t + sin Θ (N x t) = t rotated about N by Θ, v = N x u
     if theta_sel is None:
         u = t
@@ -305,6 +290,40 @@ def build(tree: bpy.types.NodeTree, lobe_data: dict, layers, theta_k, xi_k, tint
         tree.links.new(base_socket, mixs.inputs[1])
     tree.links.new(scratch, mixs.inputs[2])
     return _cull_gate(g, mixs.outputs[0], layers, controls, base_socket)
+
+
+def layer_coverage(g, uv, theta_k, xi_k, size, threshold, twin: str | None = None, cost_off: int = 0) -> list:
+    """Running sums acc_k = Σ_{j <= k} [F1_j]_d of the layers' coverage indicators (eq. 7; one texture-mapped
+    Voronoi per layer, ``layer_feature_distance``); acc_{N-1} = ᾱ.  ``twin``: tag the nodes holding the layer
+    constants (``set_layer_constants``)."""
+    acc, accs = None, []
+    for k in range(len(theta_k)):
+        tag = None if twin is None else f"{twin}/%s/{k}"
+        f1 = layer_feature_distance(g, uv, theta_k[k], xi_k[k], size, tag=tag, cost_off=cost_off)
+        a = g.math("LESS_THAN", f1, threshold)  # [F1]_d, eq. 7
+        acc = a if acc is None else g.math("ADD", acc, a)
+        accs.append(acc)
+    return accs
+
+
+def picked_angle(g, target, accs, theta_k, twin: str | None = None):
+    """Θ of the layer that ``target`` ∈ [0, ᾱ) picks (layer k when acc_{k-1} <= target < acc_k, probability
+    α_k / ᾱ): from the last layer back, Θ = Θ_k wherever target < acc_k (one Less Than and one Mix per layer).
+    ``twin``: tag the Mix nodes with the Θ_k they hold (``set_layer_constants``)."""
+    n = len(theta_k)
+    theta_sel = float(theta_k[-1])
+    for k in range(n - 2, -1, -1):
+        mix = g.node("ShaderNodeMix", data_type="FLOAT", clamp_factor=False)
+        g._set(mix.inputs[0], g.math("LESS_THAN", target, accs[k]))
+        g._set(mix.inputs[2], theta_sel)
+        g._set(mix.inputs[3], float(theta_k[k]))
+        if twin is not None:
+            tags = [f"{twin}/theta3/{k}"]
+            if k == n - 2:   # input 2 holds the last layer's Θ
+                tags.append(f"{twin}/theta2/{k + 1}")
+            mix[LAYER_CONST] = ";".join(tags)
+        theta_sel = mix.outputs[0]
+    return theta_sel
 
 
 def race_visits(n_layers: int, density: float) -> float:
