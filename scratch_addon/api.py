@@ -100,11 +100,10 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
         with transaction.new_datablocks():  # a failed build leaves no half material behind
             material = materials.new_material(name or f"Scratched {preset or 'material'}")
             scratch_material.build(material, spec, progress=progress)
-    if hasattr(material, "scratch"):  # add-on registered: keep the UI in sync
-        from . import live
+    if hasattr(material, "scratch"):  # add-on registered: the panel shows what was built (every parameter,
+        from . import live          # defaults included), so a later panel edit changes only what it edits
 
-        if preset is not None:
-            material.scratch.from_params(merged)
+        material.scratch.from_spec(spec)
         live.mark_synced(material)
     return material
 

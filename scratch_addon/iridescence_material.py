@@ -278,7 +278,28 @@ def insert_layer(material, scratches=None, *, sigma_um=60.0, route="lobes", samp
     lights = lights_from_scene(scene or bpy.context.scene) if p["route"] == "lights" else []
     src = shader_source(scratches, lights=lights, **p)
     with transaction.rebuild(material, replace=False):  # a failure (OSL compile, ...) leaves the material as it was
-        return _insert(material, scratches, src, p, lights)
+        node = _insert(material, scratches, src, p, lights)
+    show_params(material, p)
+    return node
+
+
+_showing = 0   # > 0: PropertyGroup writes by show_params, not the user's: no rebuild (_rebuild)
+
+
+def show_params(material, p: dict) -> None:
+    """The panel (``material.scratch_iridescence``) shows the layer's parameters ``p`` (``check_params``), so a
+    later panel edit rebuilds with these and only the edited value changed; writes no rebuild."""
+    global _showing
+    pg = getattr(material, "scratch_iridescence", None)
+    if pg is None:
+        return
+    _showing += 1
+    try:
+        pg.sigma_um, pg.route, pg.samples = p["sigma_um"], p["route"].upper(), p["samples"]
+        pg.base_blend, pg.candidates, pg.base_weight = p["base_blend"], p["candidates"], p["base_weight"].upper()
+        pg.shadows = p["shadows"]
+    finally:
+        _showing -= 1
 
 
 def _insert(material, scratches, src, p, lights):
@@ -378,7 +399,7 @@ def _rebuild(pg, context):
     base blend select code): a change regenerates it, debounced in the UI so a drag compiles once
     (``live.call_debounced``), at once headless."""
     mat = pg.id_data
-    if not isinstance(mat, bpy.types.Material) or layer_node(mat) is None:
+    if _showing or not isinstance(mat, bpy.types.Material) or layer_node(mat) is None:
         return
     name = mat.name
     scene_name = context.scene.name if context and getattr(context, "scene", None) else None
@@ -389,7 +410,8 @@ def _rebuild(pg, context):
             return
         p = m.scratch_iridescence
         try:
-            insert_layer(m, None, sigma_um=p.sigma_um, route=p.route.lower(), samples=p.samples,
+            sigma = float(np.format_float_scientific(np.float32(p.sigma_um), unique=True))  # the typed value
+            insert_layer(m, None, sigma_um=sigma, route=p.route.lower(), samples=p.samples,
                          base_blend=p.base_blend, scene=bpy.data.scenes.get(scene_name) if scene_name else None,
                          candidates=p.candidates, base_weight=p.base_weight.lower(), shadows=p.shadows)
         except (ValueError, OSError, osl_compile.OSLCompileError) as exc:

@@ -33,7 +33,10 @@ class SCRATCH_PT_material(bpy.types.Panel):
         box = col.box()
         box.label(text="Profile and Fresnel")
         box.prop(s, "profile_type")
-        box.prop(s, "profile_file" if s.profile_type == "file" else "profile_value")
+        if s.profile_type == "script":
+            box.label(text=f"Set by a script: {s.get('script_profile', {}).get('name', '?')}")
+        else:
+            box.prop(s, "profile_file" if s.profile_type == "file" else "profile_value")
         box.prop(s, "fresnel_type")
         if s.fresnel_type == "metal":
             box.prop(s, "metal")
@@ -43,6 +46,8 @@ class SCRATCH_PT_material(bpy.types.Panel):
             row.prop(s, "ior_k")
         elif s.fresnel_type == "schlick":
             box.prop(s, "ior")
+        elif s.fresnel_type == "script":
+            box.label(text=f"Set by a script: {s.get('script_fresnel', {}).get('model', '?')}")
         box.prop(s, "tint")
         box = col.box()
         box.prop(s, "use_layers")
@@ -55,6 +60,8 @@ class SCRATCH_PT_material(bpy.types.Panel):
             box.prop(s, "base_color")
         if s.base_type in ("glossy", "principled"):
             box.prop(s, "base_roughness")
+        if s.base_type == "principled":
+            box.prop(s, "base_metallic")
         box.prop(s, "diffuse_type")
         if s.diffuse_type == "color":
             box.prop(s, "diffuse_color")
@@ -65,6 +72,7 @@ class SCRATCH_PT_material(bpy.types.Panel):
         sub.active = s.lobe_shape != "table"   # K only shapes fitted lobes
         sub.prop(s, "lobes")
         row.prop(s, "resolution")
+        row.prop(s, "slices")
         box.prop(s, "mode", expand=True)
         box.prop(s, "backend")
         col.operator("scratch.update_material", icon="FILE_REFRESH")   # forces a full rebuild
