@@ -231,15 +231,20 @@ def test_keyframed_density_renders_differently_on_two_frames(addon, scene, tmp_p
 
 
 def _layer_constants(mat) -> dict:
-    """The per-layer constants (eq. 7's Θ_k, ξ_k) of the nodes ``scratch_svm.build`` tags, by tag."""
+    """The per-layer constants (eq. 7's Θ_k, ξ_k) of the nodes ``scratch_svm.build`` tags, by tag: unlinked input
+    values, a layer Voronoi's texture mapping (where the picked-layer graph keeps Θ_k, ξ_k) and the pixels of a
+    layer race's parameters image."""
     def values(node):
         out = []
         for s in node.inputs:
             if not s.is_linked and hasattr(s, "default_value"):
                 v = s.default_value
-                out.extend(round(float(x), 6) for x in (v if hasattr(v, "__len__") else (v,)))
-        if getattr(node, "image", None) is not None:   # a layer race's rotations / offsets image (content-named)
-            out.append(node.image.name)
+                out.extend(float(x) for x in (v if hasattr(v, "__len__") else (v,)))
+        tm = getattr(node, "texture_mapping", None)
+        if tm is not None:
+            out.extend(float(x) for x in (*tm.translation, *tm.rotation, *tm.scale))
+        if getattr(node, "image", None) is not None:   # a layer race's rotations / offsets image
+            out.append(_image_hash(node.image))
         return tuple(out)
     from bl_ext.user_default.scratch_addon.node_groups import scratch_svm
 
@@ -247,30 +252,76 @@ def _layer_constants(mat) -> dict:
             if n.get("scratch_layer_const")}
 
 
-def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, mat):
+def _constants_differ(a: dict, b: dict) -> list:
+    """Tags whose constants differ beyond float32 rounding (an in-place update computes a Voronoi's offset from
+    the float32 scale it reads back, a fresh build from the float64 length: 1 ulp apart) or whose image differs."""
+    def same(x, y):
+        return len(x) == len(y) and all(u == v if isinstance(u, str) or isinstance(v, str)
+                                        else abs(u - v) <= 1e-6 * max(1.0, abs(u), abs(v)) for u, v in zip(x, y))
+    return sorted(k for k in set(a) | set(b) if k not in a or k not in b or not same(a[k], b[k]))
+
+
+#: the two layouts of the Cycles twin's layers (node_groups.scratch_svm.races): a race (32 sparse layers: about
+#: 3 of 32 visited per sample) and the picked layer (4 such layers: a race would visit 3.9 of 4), with the kinds
+#: of constant-holding nodes each has (``set_layer_constants`` tags) and how many per layer count n
+LAYER_GRAPHS = {
+    "race": (MAT, {"race_par"}, lambda n: 1),
+    "picked": (dict(MAT, layers=dict(MAT["layers"], n_layers=4)), {"vor", "theta2", "theta3"},
+               lambda n: 2 * n),   # per layer a Voronoi (Θ, ξ in its mapping), Θ in the pick's Mix chain
+}
+
+
+def _seed_spread_problems(addon, graph: str) -> list:
+    """Build the ``graph`` material, change its seed and spread in the panel; what differs from a fresh API
+    build of the changed parameters (empty: the in-place update equals the fresh build)."""
     import bpy
 
-    before = _snapshot(mat)
-    consts = _layer_constants(mat)
+    params, want_kinds, per_layer = LAYER_GRAPHS[graph]
+    mat = addon.api.make_scratched_material("demo", name=f"live {graph}", **params)
     n = mat.scratch.n_layers
+    consts = _layer_constants(mat)
     tags = {t for key in consts for t in key.split(";") if t.startswith("svm/")}
-    # per layer: its Mapping (Θ, and ξ when the size is constant), the four factors of its Location -R_z(Θ) (l ξx, w ξy)
-    # (live size; node_groups.scratch_svm.layer_coordinates) and its Θ in the pick; or, when the Cycles twin is a
-    # layer race (scratch_svm.races), the parameters image node of the race position's group
     kinds = {t.split("/")[1] for t in tags}
-    race = {"race_par"}
-    assert kinds in ({"map", "la", "lb", "lc", "ld", "theta2", "theta3"}, race), kinds
-    assert len(tags) == (1 if kinds == race else 6 * n), (n, sorted(tags))
+    # the graph actually built is the one this case is about (a change of scratch_svm.races shows here)
+    assert (kinds, len(tags)) == (want_kinds, per_layer(n)), (graph, sorted(tags))
+    before = _snapshot(mat)
     mat.scratch.seed = 7
     mat.scratch.theta_deg = 40.0
-    assert addon.live.last_update()["kind"] == "tables"
+    problems = []
+    if addon.live.last_update()["kind"] != "tables":
+        problems.append(f"kind {addon.live.last_update()['kind']} (want tables, in place)")
     after = _snapshot(mat)
-    assert after["nodes"] == before["nodes"] and after["text"] != before["text"]
-    fresh = bpy.data.materials.new("fresh")
-    addon.api.make_scratched_material(material=fresh, **mat.scratch.to_params())
-    assert _layer_constants(mat) == _layer_constants(fresh) != consts
-    want = _snapshot(fresh)
-    assert (after["text"], after["C"], after["B"]) == (want["text"], want["C"], want["B"])
+    if after["nodes"] != before["nodes"]:
+        problems.append("nodes replaced")
+    changed = dict(params, layers=dict(params["layers"], seed=7, theta_deg=40.0))
+    fresh = addon.api.make_scratched_material("demo", name=f"fresh {graph}", **changed)
+    got, want = _layer_constants(mat), _layer_constants(fresh)
+    if _constants_differ(got, want):
+        problems.append(f"layer constants differ from a fresh build at {_constants_differ(got, want)[:4]}")
+    if not _constants_differ(want, consts):
+        problems.append("the seed / spread change does not change the fresh build's constants (the test sees nothing)")
+    fresh_snap = _snapshot(fresh)
+    for key in ("text", "C", "B"):
+        if after[key] != fresh_snap[key]:
+            problems.append(f"{key} differs from a fresh build")
+    bpy.data.materials.remove(fresh)
+    return problems
+
+
+@pytest.mark.parametrize("graph", sorted(LAYER_GRAPHS))
+def test_seed_and_spread_update_in_place_like_a_fresh_build(addon, scene, graph):
+    """Seed and spread are layer constants rewritten in place (same nodes): the result equals a fresh build,
+    on either layout of the Cycles twin's layers (race / picked layer) and on the EEVEE twin."""
+    assert _seed_spread_problems(addon, graph) == []
+
+
+def test_seed_and_spread_check_fails_on_a_broken_update(addon, scene, monkeypatch):
+    """The check above can fail: an in-place update that misses the layers' change (its transforms are taken
+    as unchanged, so no constant is rewritten) is caught on both layouts."""
+    monkeypatch.setattr(addon.scratch_material, "_layer_transforms_change", lambda material, lp: False)
+    for graph in sorted(LAYER_GRAPHS):
+        problems = _seed_spread_problems(addon, graph)
+        assert any("layer constants differ" in p for p in problems), (graph, problems)
 
 
 def test_iridescent_layer_drag_compiles_once_with_the_last_value(addon, scene, monkeypatch):
