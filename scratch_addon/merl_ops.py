@@ -14,11 +14,51 @@ from __future__ import annotations
 import os
 
 import bpy
+import numpy as np
 
 from ..precompute import validation
-from ..precompute.tables import merl
+from ..precompute.tables import merl, tabulated_brdf
 from . import panels, tabulated_material, transaction
 from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, report_error
+
+
+#: view angles θo (degrees) of the import's energy check (``energy_check``)
+ALBEDO_VIEWS_DEG = (0.0, 45.0, 70.0)
+
+
+def file_albedo(table, wo, n_theta: int = 90, n_phi: int = 180) -> np.ndarray:
+    """Directional albedo ∫ f cos θi dωi (N, 3) of the measured BRDF itself (``table`` (90, 90, 180, 3), the MERL
+    nearest-bin lookup ``merl.lookup``) for views ``wo`` (N, 3): midpoint rule over the half vector in MERL's own
+    warping θh = x² π/2 (``n_theta`` = 90: one point per θh bin, dense at the peak) x ``n_phi`` φh, with
+    ωi = reflect(ωo, h), dωi = 4 |h·ωo| dωh.  Measured on a GGX α 0.05 file against 1500 x 360 points: within
+    0.14 % at θo 0 / 45 / 70° (a uniform 192² h grid of twice the cost: 0.3-0.6 %).  Dimensionless."""
+    x = (np.arange(n_theta) + 0.5) / n_theta
+    th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n_theta
+    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
+    TH, PH = np.meshgrid(th, ph, indexing="ij")
+    h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
+    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
+    out = []
+    for w in np.atleast_2d(np.asarray(wo, np.float64)):
+        W = np.broadcast_to(w, h.shape)
+        wi, ok = tabulated_brdf.reflect(W, h)
+        f = merl.lookup(table, np.where(ok[:, None], wi, [0.0, 0.0, 1.0]), W)
+        out.append((f * (ok * wi[:, 2] * 4.0 * np.abs(h @ w) * dwh)[:, None]).sum(0))
+    return np.array(out)
+
+
+def energy_check(table, brdf, floor: bool = True) -> dict:
+    """What the imported material reflects against what the file measures: the directional albedo (mean of R,
+    G, B) at ``ALBEDO_VIEWS_DEG`` of the rendered closure (``tabulated_brdf.closure_albedo``: the Diffuse floor
+    kd plus the table residual) and of the file (``file_albedo``), and the worst relative difference.  The
+    table's error is its resolution; this is its measure in energy (a white furnace renders this albedo)."""
+    a = np.radians(ALBEDO_VIEWS_DEG)
+    wo = np.stack([np.sin(a), np.zeros_like(a), np.cos(a)], 1)
+    got = tabulated_brdf.closure_albedo(brdf, wo, floor).mean(1)
+    want = file_albedo(table, wo).mean(1)
+    rel = (got - want) / np.maximum(want, 1e-6)
+    return {"views_deg": list(ALBEDO_VIEWS_DEG), "table": [float(v) for v in got], "file": [float(v) for v in want],
+            "worst_rel": float(rel[np.argmax(np.abs(rel))])}
 
 
 def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None,
@@ -27,21 +67,50 @@ def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: in
     the closure's isotropic grid; missing bins take their measured neighbour's value, ``merl.fill_missing``).
     ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure, only the rest through the table
     closure (``tabulated_brdf.floor_split``: a point lamp then lights the diffuse part at every sample).
+    Custom properties ``merl_albedo_views`` / ``merl_albedo_table`` / ``merl_albedo_file``: the rendered
+    closure's and the file's directional albedo at those view angles (``energy_check``); what each render path
+    shows: ``tabulated_svm`` / ``tabulated_eevee`` (``make_tabulated_material``).
     ValueError for unreadable / non-MERL files and out-of-range sizes; nothing is created then."""
     validation.check_range("res", res, 4, 48)
     validation.check_range("n_theta", n_theta, 4, 90)
     step = progress or (lambda f: None)
     step(0.0)
-    table = merl.read_merl(path)
+    table = merl.fill_missing(merl.read_merl(path))   # once: the table and the energy check read the same data
     step(0.4)
-    brdf = merl.to_tabulated(table, int(res), int(n_theta))
+    brdf = merl.to_tabulated(table, int(res), int(n_theta), fill=False)
+    step(0.7)
+    check = energy_check(table, brdf, floor)
     step(0.8)
     name = name or os.path.splitext(os.path.basename(os.fspath(path)))[0]
     with transaction.new_datablocks():
         mat = tabulated_material.make_tabulated_material(brdf, name, kind="merl", floor=floor)
         mat["merl_source"] = os.path.basename(os.fspath(path))
+        mat["merl_albedo_views"] = check["views_deg"]
+        mat["merl_albedo_table"] = check["table"]
+        mat["merl_albedo_file"] = check["file"]
     step(1.0)
     return mat
+
+
+def import_summary(mat) -> str:
+    """One line on an imported material: what renders where, and its energy against the file's."""
+    paths = {"table": "the table", "fit": "a fitted Diffuse + Glossy twin"}
+    svm, eevee = mat.get("tabulated_svm", "?"), mat.get("tabulated_eevee", "?")
+    where = ("the table in Cycles (OSL and SVM) and EEVEE" if svm == eevee == "table" else
+             f"the table in Cycles OSL; SVM: {paths.get(svm, svm)}; EEVEE: {paths.get(eevee, eevee)}")
+    if "tabulated_twin_rel_l1" in mat:
+        where += f" (twin fit error {100 * float(mat['tabulated_twin_rel_l1']):.0f} % rel. L1)"
+    text = f"{mat.get('tabulated_res', 0)}² directions, {where}"
+    if "merl_albedo_table" in mat:
+        views, got, want = (list(mat[k]) for k in ("merl_albedo_views", "merl_albedo_table", "merl_albedo_file"))
+        rel = [(g - w) / max(w, 1e-6) for g, w in zip(got, want)]
+        worst = max(rel, key=abs)
+        text += ("; albedo at " + "/".join(f"{v:g}" for v in views) + "°: " + "/".join(f"{g:.3f}" for g in got)
+                 + ", file " + "/".join(f"{w:.3f}" for w in want) + f" ({100 * worst:+.1f} % worst)")
+    kd = list(mat.get("tabulated_floor", ()))
+    if kd:
+        text += f"; smooth floor kd {max(kd):.3f}"
+    return text
 
 
 class SCRATCH_OT_import_merl(bpy.types.Operator):
@@ -77,9 +146,7 @@ class SCRATCH_OT_import_merl(bpy.types.Operator):
             return report_error(self, exc, {"res": "Direction Resolution", "n_theta": "View Angles",
                                             "path": "File"})
         assign_material(obj, mat)
-        kd = list(mat.get("tabulated_floor", (0.0, 0.0, 0.0)))
-        self.report({"INFO"}, f"Assigned {mat.name} ({mat.get('tabulated_res', 0)}² directions; smooth floor kd "
-                              f"{max(kd):.3f}; SVM: {mat.get('tabulated_svm', '?')}, EEVEE: {mat.get('tabulated_eevee', '?')})")
+        self.report({"INFO"}, f"Assigned {mat.name} ({import_summary(mat)})")
         return {"FINISHED"}
 
 
@@ -100,8 +167,8 @@ class SCRATCH_PT_measured_brdf(bpy.types.Panel):
         layout.operator(SCRATCH_OT_import_merl.bl_idname, icon="IMPORT")
         mat = context.material
         if mat is not None and "merl_source" in mat:
-            layout.label(text=f"From: {mat['merl_source']} ({mat.get('tabulated_res', 0)}² directions, "
-                              f"the table in Cycles and EEVEE)")
+            layout.label(text=f"From: {mat['merl_source']}")
+            layout.label(text=import_summary(mat))
 
 
 classes = (SCRATCH_OT_import_merl, SCRATCH_PT_measured_brdf)

@@ -72,7 +72,8 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     ``glossy_twin``); it renders Cycles SVM and EEVEE when ``svm_table`` is False or the table exceeds the image
     limit (``tabulated_svm.fits``), and EEVEE when ``eevee_table`` is False; it is not built when unused.
     ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom properties
-    ``tabulated_svm`` / ``tabulated_eevee``: "table" or "fit" (what Cycles SVM / EEVEE render).  ``floor``: render
+    ``tabulated_svm`` / ``tabulated_eevee``: "table" or "fit" (what Cycles SVM / EEVEE render); ``tabulated_twin_rel_l1``:
+    the fitted twin's error, only when a path renders the default twin (it is computed only then).  ``floor``: render
     the BRDF's smooth part kd/π as a Diffuse closure and only the residual through the table closure
     (``tabulated_brdf.floor_split``; custom property ``tabulated_floor``: kd).
     Raises ValueError (nothing created) for tables that cannot be compiled."""
@@ -82,7 +83,9 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     tables = tabulated_brdf.closure_tables(brdf, alpha, floor)
     use_table = bool(svm_table) and tabulated_svm.fits(tables)
     ee_table = use_table and bool(eevee_table)
-    twin = None if svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
+    # the least-squares twin only where a path renders it ("skip what a scene doesn't need": it is the
+    # import's costliest step after the table itself and nothing reads it when SVM and EEVEE render the table)
+    twin = None if ee_table or svm_twin is not None else tabulated_brdf.glossy_twin(brdf)
     n_groups, n_images = set(bpy.data.node_groups), set(bpy.data.images)
     mat = new_material(name)
     try:
