@@ -134,6 +134,10 @@ def test_panel_values_are_what_the_user_typed(addon, scene):
     mat = addon.api.make_scratched_material(name="api", **dict(PARAMS, profile=("quartic", 0.3)))
     p = mat.scratch.to_params()
     assert p["profile"] == ("quartic", 0.3) and p["layers"]["width"] == 3e-4
+    # a depth no float32 holds is kept exactly (From Script), not rounded into another table
+    addon.api.make_scratched_material(material=mat, **dict(PARAMS, profile=("quartic", 0.123456789)))
+    assert mat.scratch.profile_type == "script"
+    assert mat.scratch.to_params()["profile"].params["depth"] == 0.123456789
 
 
 def test_an_unstorable_fresnel_model_fails_panel_edits_loudly(addon, scene):
