@@ -142,7 +142,7 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
         if self.profile_type == "file":
             if not self.profile_file:
                 raise ValueError("profile file: choose a CSV/text file of x, height")
-            return profiles.from_file(bpy.path.abspath(self.profile_file))
+            return _profile_from_file(bpy.path.abspath(self.profile_file))
         if self.profile_type == "script":
             return _stored_profile(self.get(SCRIPT_PROFILE_KEY))
         return (self.profile_type, _f32(self.profile_value))
@@ -234,6 +234,28 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
             return
         self[SCRIPT_FRESNEL_KEY] = _fresnel_record(fresnel)
         self.fresnel_type = "script"
+
+
+_FILE_PROFILES: dict = {}   # (path, mtime, size) -> Profile: a live rebuild reads the file once, not twice
+
+
+def _profile_from_file(path: str) -> profiles.Profile:
+    """``profiles.from_file(path)``, remembered while the file is unchanged (at most 2 files: profiles of up to
+    ``profiles.MAX_POINTS`` points are tens of MB)."""
+    import os
+
+    try:
+        st = os.stat(path)
+        key = (path, st.st_mtime_ns, st.st_size)
+    except OSError:
+        return profiles.from_file(path)          # its own error names the file
+    hit = _FILE_PROFILES.get(key)
+    if hit is None:
+        hit = profiles.from_file(path)
+        if len(_FILE_PROFILES) >= 2:
+            _FILE_PROFILES.pop(next(iter(_FILE_PROFILES)))
+        _FILE_PROFILES[key] = hit
+    return hit
 
 
 def _f32(value):

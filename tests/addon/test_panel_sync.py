@@ -179,3 +179,23 @@ def test_iridescent_layer_panel_edit_after_an_api_insert_changes_only_that_value
     pg.shadows = False                    # headless: rebuilt at once from the panel
     irid.insert_layer(fresh, scratches, **dict(IRID, shadows=False))
     assert _layer_state(addon, mat) == _layer_state(addon, fresh)
+
+
+def test_a_file_profile_stays_a_file_profile_and_is_read_once_per_rebuild(addon, scene, tmp_path, monkeypatch):
+    """A measured profile chosen in the panel (a file) stays the panel's file through API rebuilds (not turned
+    into a From Script copy), and a panel rebuild reads the file once."""
+    profiles = _pre(addon, "profiles")
+    x = np.linspace(-0.5, 0.5, 41)
+    path = tmp_path / "groove.csv"
+    np.savetxt(path, np.c_[x, -0.2 * (1 - (2 * x) ** 2) ** 2], delimiter=",")
+    mat = addon.api.make_scratched_material(name="api", **PARAMS)
+    reads = []
+    real = profiles.from_file
+    monkeypatch.setattr(profiles, "from_file", lambda p, **kw: reads.append(p) or real(p, **kw))
+    with addon.live.batch():
+        mat.scratch.profile_type = "file"
+        mat.scratch.profile_file = str(path)
+    assert mat.scratch.profile_type == "file" and json.loads(mat["scratch_addon_params"])["profile"]["name"] == "groove"
+    assert len(reads) == 1, reads
+    mat.scratch.n_layers = 2                                       # a rebuild: the file unchanged, not read again
+    assert mat.scratch.profile_type == "file" and len(reads) == 1
