@@ -144,6 +144,11 @@ class _Buckets:
         self.bxmin_f = X[:, idx].min(-1).ravel()
         self.bxmax_f = X[:, idx].max(-1).ravel()
         self.bhmax_f = H[:, idx].max(-1).ravel()
+        # four tables (frame o x sign of dh: t = 2 o + (dh < 0)) of the bucket's top and of the x at which the
+        # level's -dh x term is largest (xmin for dh >= 0, xmax for dh < 0): one gather each per beam and bucket
+        xmin, xmax, hmax = (z.reshape(2, nb) for z in (self.bxmin_f, self.bxmax_f, self.bhmax_f))
+        self.bxsel_t = np.concatenate([xmin[0], xmax[0], xmin[1], xmax[1]])
+        self.bhmax_t = np.concatenate([hmax[0], hmax[0], hmax[1], hmax[1]])
 
 
 class _Geometry:
@@ -174,13 +179,6 @@ class _Geometry:
             self.buckets = _Buckets(X, H, P, self.G)
         # flat copies for fast 1D gathers (index = frame * length + position)
         self.Xf, self.Hf = X.ravel(), H.ravel()
-
-
-def _levels(g: _Geometry, o, j, t, dx, dh):
-    """Level s = dx h - dh x of the point at parameter t on base segment j (frame o)."""
-    x = g.X[o, j] + t * (g.X[o, j + 1] - g.X[o, j])
-    h = g.H[o, j] + t * (g.H[o, j + 1] - g.H[o, j])
-    return dx * h - dh * x
 
 
 def _apply(U, x, h):
@@ -245,7 +243,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     beams = dict(
         sample=e_idx, o=oo, j=w_idx, shift=np.ones(n0, np.intp), t0=t_lo, t1=t_hi, dx=dx[e_idx], dh=dh[e_idx],
         pid=np.zeros(n0, np.int64),
-        f=np.ones((n0, S, C)) if C else None,
+        f=True if C else None,   # (Fresnel products of no bounce yet: all ones, which the first bounce replaces)
         R=None, tr=None, P0=None, P1=None,
         cp=np.zeros((n0, 0)) if cos_path else None,
     )
@@ -349,7 +347,8 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     if f is not None or cp is not None:
         cos2d = np.clip(-dn, 0.0, 1.0)
     if f is not None:
-        f = f * fresnel(cos2d[:, None] * cos_scales[None, :])
+        fz = fresnel(cos2d[:, None] * cos_scales[None, :])
+        f = fz if f is True else f * fz     # 1 x F = F exactly: the first bounce multiplies nothing
     if cp is not None:
         cp = np.concatenate([cp, cos2d[:, None]], 1)
     j_orig = np.where(o == 0, j, P - 1 - j).astype(np.int64)
@@ -361,7 +360,12 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     t0 = np.where(flip, 1.0 - bm["t0"], bm["t0"])
     t1 = np.where(flip, 1.0 - bm["t1"], bm["t1"])
     dx = np.abs(dx)
-    l0, l1 = _levels(g, o, j, t0, dx, dh), _levels(g, o, j, t1, dx, dh)
+    # the levels s = dx h - dh x of the two edges (the points at t0, t1 on the segment; its ends gathered once)
+    fj = o * g.X.shape[1] + j
+    xa, ha = g.Xf[fj], g.Hf[fj]
+    ex, eh = g.Xf[fj + 1] - xa, g.Hf[fj + 1] - ha
+    l0 = dx * (ha + t0 * eh) - dh * (xa + t0 * ex)
+    l1 = dx * (ha + t1 * eh) - dh * (xa + t1 * ex)
     out = dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
                pid=pid, f=f, R=None, tr=None, cp=cp, Phi=None, Plo=None)
     if R is not None:
@@ -574,10 +578,10 @@ def _visibility_scan(g: _Geometry, bm: dict):
     nbw = -(-P // B) + 2
     bidx = v0[:, None] // B + np.arange(nbw)[None, :]
     bstart = bidx * B
-    fb = o[:, None] * bk.nbuckets + bidx
-    # upper bound of the level s over each bucket's bounding box ([beam, bucket])
+    fb = ((2 * o + (dh < 0)) * bk.nbuckets)[:, None] + bidx
+    # upper bound of the level s over each bucket's bounding box ([beam, bucket]): dx hmax + max(-dh xmin, -dh xmax)
     dxc, dhc = dx[:, None], dh[:, None]
-    bound = dxc * bk.bhmax_f[fb] + np.maximum(-dhc * bk.bxmin_f[fb], -dhc * bk.bxmax_f[fb])
+    bound = dxc * bk.bhmax_t[fb] + -dhc * bk.bxsel_t[fb]
     bound[bstart >= end[:, None]] = -np.inf
     bend = bstart + B
     Lcur = bm["Lb"].copy()
