@@ -209,13 +209,14 @@ def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
         # grouped by direction once (views into one sorted copy per field)
         order = np.argsort(r.sample, kind="stable")
         cuts = np.searchsorted(r.sample[order], np.arange(new.size + 1)).tolist()
-        cols = [getattr(r, f)[order] for f in _FIELDS] + [x[order] for x in extra]
+        cols = [getattr(r, f)[order] for f in _FIELDS[:4]] + [x[order] for x in extra]
         row_bytes = sum(c[:1].nbytes for c in cols[:4])
+        cp = r.cos_path          # (padded to the longest path: gathered per direction, to its own longest)
         for k in range(new.size):
             a, b = cuts[k], cuts[k + 1]
-            geo = tuple(c[a:b] for c in cols[:4]) + (cols[4][a:b, :int(cols[1][a:b].max(initial=0))].copy(),)
+            geo = tuple(c[a:b] for c in cols[:4]) + (cp[order[a:b], :int(cols[1][a:b].max(initial=0))],)
             have[float(new[k])] = (geo + (float(r.lost[k]), row_bytes * (b - a) + geo[4].nbytes + 200)
-                                   + tuple(c[a:b] for c in cols[5:]))
+                                   + tuple(c[a:b] for c in cols[4:]))
         if GEOMETRY_BYTES > 0:
             with _GEOMETRY_LOCK:
                 store.update((float(p), have[float(p)][:7]) for p in new)
