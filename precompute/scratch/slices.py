@@ -728,7 +728,8 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     # exact slice moments per node, theta sample and channel (for the rank choice)
     e = -0.5 * np.pi + (np.arange(M) + 0.5) * (np.pi / M)
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
-    exact = np.tensordot(fm_b, basis_f, axes=([1], [1]))                              # [S, T, C, 3]
+    # (a batched matmul over the bins: tensordot's sums, without its transposed copy of fm_b)
+    exact = np.matmul(basis_f, fm_b.reshape(S, M, -1)).reshape(S, 3, NT, C).transpose(0, 2, 3, 1)   # [S, T, C, 3]
     # the model's moments: Y is constant over a group of bins, so sum mass x moment function per group first
     gq = np.matmul(mass_b.reshape(S, Mg, group)[:, :, None, :],
                    basis_f.reshape(3, Mg, group).transpose(1, 2, 0)[None])[:, :, 0, :]    # [S, Mg, 3]

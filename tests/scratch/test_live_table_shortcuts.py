@@ -69,3 +69,28 @@ def test_view_slices_equal_those_of_the_dense_model_moments(monkeypatch):
     dense = slices.view_slices(prof, 64, F, base=16, levels=3).arrays()
     for k, v in dense.items():
         np.testing.assert_array_equal(fast[k], v, err_msg=k)
+
+
+def _theta_basis_with_tensordot():
+    """``slices._theta_basis`` as it was: the exact moments by ``np.tensordot`` over the bins (its source with
+    that one line put back)."""
+    import inspect
+
+    src = inspect.getsource(slices._theta_basis)
+    new = ("exact = np.matmul(basis_f, fm_b.reshape(S, M, -1)).reshape(S, 3, NT, C).transpose(0, 2, 3, 1)")
+    assert src.count(new) == 1
+    ns = dict(vars(slices))
+    exec(src.replace(new, "exact = np.tensordot(fm_b, basis_f, axes=([1], [1]))"), ns)  # noqa: S102
+    return ns["_theta_basis"]
+
+
+def test_theta_basis_moments_equal_tensordots(monkeypatch):
+    """The θo basis's exact moments by a batched matmul over the bins (no transposed copy of the Fresnel masses):
+    the view slices (basis, coefficients, error) equal those of ``np.tensordot``, bit for bit."""
+    prof = profiles.quartic(0.087)
+    F = material.trace_fresnel(material.validate(fresnel="gold"))
+    fast = slices.view_slices(prof, 64, F, base=16, levels=3).arrays()
+    monkeypatch.setattr(slices, "_theta_basis", _theta_basis_with_tensordot())
+    ref = slices.view_slices(prof, 64, F, base=16, levels=3).arrays()
+    for k, v in ref.items():
+        np.testing.assert_array_equal(fast[k], v, err_msg=k)
