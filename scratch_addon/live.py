@@ -13,8 +13,9 @@ Three kinds of panel value (``material.scratch``):
   ``transaction.rebuild``).
 
 In the UI, table and structure edits are debounced (``DEBOUNCE_S`` after the last change: a drag
-queues one update with the last value), the tables are computed in worker threads (numpy releases the
-GIL: the UI stays responsive during a cache miss) and applied on the main thread.  On a cache miss of
+queues one update with the last value), the tables are computed in worker threads and applied on the
+main thread (the UI keeps running between the workers' numpy passes; the new shader's OSL compile, Cycles'
+``_cycles.osl_compile``, holds the GIL for its ~0.1 s wherever it runs: ``bench live_update``).  On a cache miss of
 table lobes quick *preview* tables (``precompute.scratch.lobes.table_lobes``, quality "preview": about a
 quarter of the cost, moments within 3 %) and the full tables are submitted together (``WORKERS``
 threads: with one, the full tables start as soon as the preview is computed, not after it is applied);

@@ -144,6 +144,11 @@ class _Buckets:
         self.bxmin_f = X[:, idx].min(-1).ravel()
         self.bxmax_f = X[:, idx].max(-1).ravel()
         self.bhmax_f = H[:, idx].max(-1).ravel()
+        # four tables (frame o x sign of dh: t = 2 o + (dh < 0)) of the bucket's top and of the x at which the
+        # level's -dh x term is largest (xmin for dh >= 0, xmax for dh < 0): one gather each per beam and bucket
+        xmin, xmax, hmax = (z.reshape(2, nb) for z in (self.bxmin_f, self.bxmax_f, self.bhmax_f))
+        self.bxsel_t = np.concatenate([xmin[0], xmax[0], xmin[1], xmax[1]])
+        self.bhmax_t = np.concatenate([hmax[0], hmax[0], hmax[1], hmax[1]])
 
 
 class _Geometry:
@@ -176,13 +181,6 @@ class _Geometry:
         self.Xf, self.Hf = X.ravel(), H.ravel()
 
 
-def _levels(g: _Geometry, o, j, t, dx, dh):
-    """Level s = dx h - dh x of the point at parameter t on base segment j (frame o)."""
-    x = g.X[o, j] + t * (g.X[o, j + 1] - g.X[o, j])
-    h = g.H[o, j] + t * (g.H[o, j + 1] - g.H[o, j])
-    return dx * h - dh * x
-
-
 def _apply(U, x, h):
     """Unfolding map ``U = (R [n,2,2], t [n,2])`` applied to points (x, h) -> [n, 2]."""
     R, t = U
@@ -199,7 +197,7 @@ def _take(bm: dict, b) -> dict:
 
 def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(), *,
                 max_bounces: int = 64, min_energy: float = 1e-7, scan_tail: bool = False,
-                cos_path: bool = False) -> ExitRecords:
+                cos_path: bool = False, bounds: bool = True) -> ExitRecords:
     """Trace parallel beams incident at angles ``phi_i`` (radians, |phi_i| < pi/2) into the periodic profile.
 
     ``verts``: one period of the polyline, ``(P + 1, 2)`` with ``V_P = V_0 + (1, 0)``, max height 0.
@@ -209,6 +207,9 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     records, in another order (sums over them, e.g. ``lost``, may differ in the last bit).
     ``cos_path``: also record every exit's bounce cosines (``ExitRecords.cos_path``; ``path_fresnel`` gives the
     ``fresnel`` weights from them, bit for bit those of a trace with that model).
+    ``bounds`` False: no beam edges (``flux_ab`` and ``bounds`` None): the unfolding maps and edge points that only
+    they need are not followed through the bounces; every other record is the same, bit for bit (the view
+    slices of ``slices`` read exits, weights, bounces and Fresnel only).
     """
     g = _Geometry(np.asarray(verts, np.float64), scan_tail)
     P = g.P
@@ -229,8 +230,6 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     Xs, Hs = g.X[o, : 2 * P + 1], g.H[o, : 2 * P + 1]
     s = dx[:, None] * Hs - dh[:, None] * Xs
     Q = np.maximum.accumulate(s, axis=1)
-    # index of the vertex that holds the running maximum (the occluder)
-    am = np.maximum.accumulate(np.where(s >= Q, np.arange(2 * P + 1)[None, :], 0), axis=1)
     lo, hi = Q[:, P : 2 * P], Q[:, P + 1 : 2 * P + 1]
     keep = (hi - lo) > _MIN_WIDTH * inc[:, None]
     e_idx, w_idx = np.nonzero(keep)
@@ -241,19 +240,24 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
     lost += inc - np.bincount(e_idx, hi[keep] - lo[keep], minlength=E)
     n0 = e_idx.size
     oo = o[e_idx]
-    R = np.zeros((n0, 2, 2))
-    R[:, 0, 0] = np.where(oo == 0, 1.0, -1.0)  # frame 1 is the mirror image
-    R[:, 1, 1] = 1.0
-    U = (R, np.zeros((n0, 2)))
-    v_lo = am[:, P : 2 * P][keep]
-    v_hi = w_idx + P + 1
     beams = dict(
         sample=e_idx, o=oo, j=w_idx, shift=np.ones(n0, np.intp), t0=t_lo, t1=t_hi, dx=dx[e_idx], dh=dh[e_idx],
         pid=np.zeros(n0, np.int64),
-        f=np.ones((n0, S, C)) if C else None,
-        R=R, tr=U[1], P0=_apply(U, g.X[oo, v_lo], g.H[oo, v_lo]), P1=_apply(U, g.X[oo, v_hi], g.H[oo, v_hi]),
+        f=True if C else None,   # (Fresnel products of no bounce yet: all ones, which the first bounce replaces)
+        R=None, tr=None, P0=None, P1=None,
         cp=np.zeros((n0, 0)) if cos_path else None,
     )
+    if bounds:  # the beams' edge points, unfolded (``ExitRecords.flux_ab`` / ``bounds``)
+        # index of the vertex that holds the running maximum (the occluder)
+        am = np.maximum.accumulate(np.where(s >= Q, np.arange(2 * P + 1)[None, :], 0), axis=1)
+        R = np.zeros((n0, 2, 2))
+        R[:, 0, 0] = np.where(oo == 0, 1.0, -1.0)  # frame 1 is the mirror image
+        R[:, 1, 1] = 1.0
+        U = (R, np.zeros((n0, 2)))
+        v_lo = am[:, P : 2 * P][keep]
+        v_hi = w_idx + P + 1
+        beams.update(R=R, tr=U[1], P0=_apply(U, g.X[oo, v_lo], g.H[oo, v_lo]),
+                     P1=_apply(U, g.X[oo, v_hi], g.H[oo, v_hi]))
     bounce = 0
     while beams["sample"].size:
         bounce += 1
@@ -267,7 +271,7 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         lost += np.where(stop, inside, 0.0)
         go = ~stop[beams["sample"][b]]
         nb_ = _take(beams, b[go])
-        nb_.update({k: v[go] for k, v in hits.items() if k in ("o", "t0", "t1", "P0", "P1")})
+        nb_.update({k: (None if v is None else v[go]) for k, v in hits.items() if k in ("o", "t0", "t1", "P0", "P1")})
         nb_.update(j=hits["seg"][go], shift=hits["shift"][go])
         beams = nb_
     cat = lambda k, dt: np.concatenate(out[k]).astype(dt) if out[k] else np.zeros(0, dt)  # noqa: E731
@@ -275,9 +279,9 @@ def trace_exact(verts: np.ndarray, phi_i: np.ndarray, fresnel=None, cos_scales=(
         sample=cat("sample", np.int64), pid=cat("pid", np.int64), 
         bounces=cat("nb", np.int64), phi_o=cat("phi", np.float64), weight=cat("w", np.float64),
         fresnel=(np.concatenate(out["f"]) if out["f"] else np.zeros((0, S, C))) if C else None,
-        flux_ab=np.concatenate(out["ab"]) if out["ab"] else np.zeros((0, 2)),
+        flux_ab=(np.concatenate(out["ab"]) if out["ab"] else np.zeros((0, 2))) if bounds else None,
         lost=np.maximum(lost, 0.0) / inc,
-        bounds=np.concatenate(out["bd"]) if out["bd"] else np.zeros((0, 2, 2)),
+        bounds=(np.concatenate(out["bd"]) if out["bd"] else np.zeros((0, 2, 2))) if bounds else None,
         cos_path=None if not cos_path else _pad_paths(out["cp"], bounce),
     )
 
@@ -324,15 +328,16 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     P = g.P
     o, j, k = bm["o"], bm["j"], bm["shift"]
     R, tr = bm["R"], bm["tr"]
-    # U <- U o translate(k, 0)
-    tr = tr + k[:, None] * R[:, :, 0]
-    # U <- U o reflect(line through A with unit normal n): p -> (I - 2 n n^T) p + 2 (A . n) n
     n = g.normal[o, j]
-    A = np.stack([g.X[o, j], g.H[o, j]], -1)
-    Rf = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
-    tf = 2.0 * (A * n).sum(-1)[:, None] * n
-    tr = np.matmul(R, tf[:, :, None])[:, :, 0] + tr
-    R = np.matmul(R, Rf)
+    if R is not None:   # the unfolding map (beam edges; ``trace_exact(bounds=False)``: not followed)
+        # U <- U o translate(k, 0)
+        tr = tr + k[:, None] * R[:, :, 0]
+        # U <- U o reflect(line through A with unit normal n): p -> (I - 2 n n^T) p + 2 (A . n) n
+        A = np.stack([g.X[o, j], g.H[o, j]], -1)
+        Rf = np.eye(2)[None] - 2.0 * n[:, :, None] * n[:, None, :]
+        tf = 2.0 * (A * n).sum(-1)[:, None] * n
+        tr = np.matmul(R, tf[:, :, None])[:, :, 0] + tr
+        R = np.matmul(R, Rf)
     dn = bm["dx"] * n[:, 0] + bm["dh"] * n[:, 1]  # < 0 for a hit
     dx = bm["dx"] - 2.0 * dn * n[:, 0]
     dh = bm["dh"] - 2.0 * dn * n[:, 1]
@@ -342,7 +347,8 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     if f is not None or cp is not None:
         cos2d = np.clip(-dn, 0.0, 1.0)
     if f is not None:
-        f = f * fresnel(cos2d[:, None] * cos_scales[None, :])
+        fz = fresnel(cos2d[:, None] * cos_scales[None, :])
+        f = fz if f is True else f * fz     # 1 x F = F exactly: the first bounce multiplies nothing
     if cp is not None:
         cp = np.concatenate([cp, cos2d[:, None]], 1)
     j_orig = np.where(o == 0, j, P - 1 - j).astype(np.int64)
@@ -353,14 +359,21 @@ def _reflect(g: _Geometry, bm: dict, fresnel, cos_scales) -> dict:
     j = np.where(flip, P - 1 - j, j)
     t0 = np.where(flip, 1.0 - bm["t0"], bm["t0"])
     t1 = np.where(flip, 1.0 - bm["t1"], bm["t1"])
-    R = R.copy()
-    R[flip, :, 0] *= -1.0  # U <- U o mirror
     dx = np.abs(dx)
-    l0, l1 = _levels(g, o, j, t0, dx, dh), _levels(g, o, j, t1, dx, dh)
-    top0 = (l0 >= l1)[:, None]
-    return dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
-                pid=pid, f=f, R=R, tr=tr, cp=cp,
-                Phi=np.where(top0, bm["P0"], bm["P1"]), Plo=np.where(top0, bm["P1"], bm["P0"]))
+    # the levels s = dx h - dh x of the two edges (the points at t0, t1 on the segment; its ends gathered once)
+    fj = o * g.X.shape[1] + j
+    xa, ha = g.Xf[fj], g.Hf[fj]
+    ex, eh = g.Xf[fj + 1] - xa, g.Hf[fj + 1] - ha
+    l0 = dx * (ha + t0 * eh) - dh * (xa + t0 * ex)
+    l1 = dx * (ha + t1 * eh) - dh * (xa + t1 * ex)
+    out = dict(sample=bm["sample"], o=o, j=j, dx=dx, dh=dh, La=np.maximum(l0, l1), Lb=np.minimum(l0, l1),
+               pid=pid, f=f, R=None, tr=None, cp=cp, Phi=None, Plo=None)
+    if R is not None:
+        R = R.copy()
+        R[flip, :, 0] *= -1.0  # U <- U o mirror
+        top0 = (l0 >= l1)[:, None]
+        out.update(R=R, tr=tr, Phi=np.where(top0, bm["P0"], bm["P1"]), Plo=np.where(top0, bm["P1"], bm["P0"]))
+    return out
 
 
 def _visibility_batched(g: _Geometry, bm: dict):
@@ -378,7 +391,8 @@ def _visibility_batched(g: _Geometry, bm: dict):
         e["beam"] = e["beam"] + a
         hit_parts.append(h)
         esc_parts.append(e)
-    cat = lambda parts: {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}  # noqa: E731
+    cat = lambda parts: {k: None if parts[0][k] is None else np.concatenate([p[k] for p in parts])  # noqa: E731
+                         for k in parts[0]}
     return cat(hit_parts), cat(esc_parts)
 
 
@@ -399,7 +413,9 @@ def _visibility(g: _Geometry, bm: dict):
     hy = g.hier
     o, dx, dh, La, Lb = bm["o"], bm["dx"], bm["dh"], bm["La"], bm["Lb"]
     v0 = (bm["j"] + 1).astype(np.int64)
-    Pcur = bm["Plo"].copy()  # unfolded point of the vertex holding the running maximum (or the beam's edge)
+    edges = bm["Plo"] is not None   # beam edges followed (``trace_exact(bounds=True)``)
+    # unfolded point of the vertex holding the running maximum (or the beam's edge)
+    Pcur = bm["Plo"].copy() if edges else None
     hits, escapes = [], []
     # state of the beams still searching, compacted: beam, level, node, current maximum Lcur
     act = np.flatnonzero(Lb < La)  # a beam of zero width neither hits nor leaves
@@ -434,17 +450,21 @@ def _visibility(g: _Geometry, bm: dict):
                 den = sb - sA
                 t0 = np.clip((lk - sA) / den, 0.0, 1.0)
                 t1 = np.clip((hk - sb) / den + 1.0, 0.0, 1.0)
-                U = (bm["R"][r], bm["tr"][r])
-                fB = fA + 1
-                p_hi = np.where((sb < Laf[seg])[:, None], _apply(U, g.Xf[fB], g.Hf[fB]), bm["Phi"][r])
+                p_lo = p_hi = None
+                if edges:
+                    U = (bm["R"][r], bm["tr"][r])
+                    fB = fA + 1
+                    p_hi = np.where((sb < Laf[seg])[:, None], _apply(U, g.Xf[fB], g.Hf[fB]), bm["Phi"][r])
+                    p_lo = Pcur[r]
                 useg = vr - 1
-                hits.append((r, o[r], useg % P, useg // P, t0, t1, hk - lk, Pcur[r], p_hi))
+                hits.append((r, o[r], useg % P, useg // P, t0, t1, hk - lk, p_lo, p_hi))
             done = sB >= Laf
             stop[f[done]] = True
-            keep = ~done
-            rk = ar[keep]
-            fk = of[keep] * L + v[keep]
-            Pcur[rk] = _apply((bm["R"][rk], bm["tr"][rk]), g.Xf[fk], g.Hf[fk])
+            if edges:
+                keep = ~done
+                rk = ar[keep]
+                fk = of[keep] * L + v[keep]
+                Pcur[rk] = _apply((bm["R"][rk], bm["tr"][rk]), g.Xf[fk], g.Hf[fk])
             T[f] = sB
         # next node: down to the first child, or past this node (then up while it is a first child)
         ni = i + 1
@@ -453,25 +473,25 @@ def _visibility(g: _Geometry, bm: dict):
         i = np.where(down, i << 1, ni >> tz)
         if stop.any():
             ge = act[fin]
-            escapes.append((ge, La[ge] - T[fin], Pcur[ge]))
+            escapes.append((ge, La[ge] - T[fin], Pcur[ge] if edges else None))
             live = ~stop
             act, k, i, T = act[live], k[live], i[live], T[live]
             tb, adx, adh, aLa, aend = tb[live], adx[live], adh[live], aLa[live], aend[live]
     keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
     if hits:
-        hit = {key: np.concatenate([h[q] for h in hits]) for q, key in enumerate(keys)}
+        hit = {key: np.concatenate([h[q] for h in hits]) if (edges or q < 7) else None for q, key in enumerate(keys)}
         for key in ("beam", "o", "seg", "shift"):
             hit[key] = hit[key].astype(np.intp)
     else:
         hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if q < 4 else np.float64)
-               for q, key in enumerate(keys)}
+               if (edges or q < 7) else None for q, key in enumerate(keys)}
     if escapes:
         esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
                "width": np.concatenate([e[1] for e in escapes]),
-               "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
+               "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2) if edges else None}
     else:
-        esc = {"beam": np.zeros(0, np.intp), "width": np.zeros(0), "Plo": np.zeros((0, 2))}
-    esc["Phi"] = bm["Phi"][esc["beam"]]
+        esc = {"beam": np.zeros(0, np.intp), "width": np.zeros(0), "Plo": np.zeros((0, 2)) if edges else None}
+    esc["Phi"] = bm["Phi"][esc["beam"]] if edges else None
     return hit, esc
 
 
@@ -487,8 +507,9 @@ def _finish_by_scan(g: _Geometry, bm: dict, act, start, T, aend, Pcur, hits: lis
     dx, dh = bm["dx"][act], bm["dh"][act]
     n_left = np.maximum(aend - start + 1, 0)
     width = int(n_left.max(initial=0))
+    edges = Pcur is not None
     if width == 0:  # past their period already: what is left above the running maximum escapes
-        escapes.append((act, La - T, Pcur[act]))
+        escapes.append((act, La - T, Pcur[act] if edges else None))
         return
     pos = start[:, None] + np.arange(width)[None, :]
     valid = pos <= aend[:, None]
@@ -504,12 +525,13 @@ def _finish_by_scan(g: _Geometry, bm: dict, act, start, T, aend, Pcur, hits: lis
     r, col = np.nonzero(new)  # row-major: each beam's new maxima in vertex order
     ar, v = act[r], pos[r, col]
     sB, Tf, Laf = s[r, col], before[r, col], La[r]
-    U = (bm["R"][ar], bm["tr"][ar])
-    fv = o[r] * L + v
-    pts = _apply(U, g.Xf[fv], g.Hf[fv])  # the unfolded new maxima
-    first = np.ones(r.size, bool)
-    first[1:] = r[1:] != r[:-1]
-    p_lo = np.where(first[:, None], Pcur[ar], np.roll(pts, 1, axis=0))  # the previous maximum (or the edge)
+    if edges:
+        U = (bm["R"][ar], bm["tr"][ar])
+        fv = o[r] * L + v
+        pts = _apply(U, g.Xf[fv], g.Hf[fv])  # the unfolded new maxima
+        first = np.ones(r.size, bool)
+        first[1:] = r[1:] != r[:-1]
+        p_lo = np.where(first[:, None], Pcur[ar], np.roll(pts, 1, axis=0))  # the previous maximum (or the edge)
     seg = v > v0[r]  # the first vertex closes the beam's own segment: only a new maximum
     if seg.any():
         rs, vr, sb, lk, Las = r[seg], v[seg], sB[seg], Tf[seg], Laf[seg]
@@ -520,18 +542,21 @@ def _finish_by_scan(g: _Geometry, bm: dict, act, start, T, aend, Pcur, hits: lis
         den = sb - sA
         t0 = np.clip((lk - sA) / den, 0.0, 1.0)
         t1 = np.clip((hk - sb) / den + 1.0, 0.0, 1.0)
-        p_hi = np.where((sb < Las)[:, None], pts[seg], bm["Phi"][ars])
+        p_hi = np.where((sb < Las)[:, None], pts[seg], bm["Phi"][ars]) if edges else None
         useg = vr - 1
-        hits.append((ars, bm["o"][ars], useg % P, useg // P, t0, t1, hk - lk, p_lo[seg], p_hi))
+        hits.append((ars, bm["o"][ars], useg % P, useg // P, t0, t1, hk - lk, p_lo[seg] if edges else None, p_hi))
     esc = ~done
     if esc.any():
         tfin = np.maximum(T, s.max(1, initial=-np.inf))
-        lastpt = Pcur[act].copy()
-        has = new.any(1)
-        if r.size:
-            lastpt[has] = pts[np.flatnonzero(np.r_[r[1:] != r[:-1], True])]
+        lastpt = None
+        if edges:
+            lastpt = Pcur[act].copy()
+            has = new.any(1)
+            if r.size:
+                lastpt[has] = pts[np.flatnonzero(np.r_[r[1:] != r[:-1], True])]
+            lastpt = lastpt[esc]
         ge = act[esc]
-        escapes.append((ge, La[esc] - tfin[esc], lastpt[esc]))
+        escapes.append((ge, La[esc] - tfin[esc], lastpt))
 
 
 def _visibility_scan(g: _Geometry, bm: dict):
@@ -553,14 +578,15 @@ def _visibility_scan(g: _Geometry, bm: dict):
     nbw = -(-P // B) + 2
     bidx = v0[:, None] // B + np.arange(nbw)[None, :]
     bstart = bidx * B
-    fb = o[:, None] * bk.nbuckets + bidx
-    # upper bound of the level s over each bucket's bounding box ([beam, bucket])
+    fb = ((2 * o + (dh < 0)) * bk.nbuckets)[:, None] + bidx
+    # upper bound of the level s over each bucket's bounding box ([beam, bucket]): dx hmax + max(-dh xmin, -dh xmax)
     dxc, dhc = dx[:, None], dh[:, None]
-    bound = dxc * bk.bhmax_f[fb] + np.maximum(-dhc * bk.bxmin_f[fb], -dhc * bk.bxmax_f[fb])
+    bound = dxc * bk.bhmax_t[fb] + -dhc * bk.bxsel_t[fb]
     bound[bstart >= end[:, None]] = -np.inf
     bend = bstart + B
     Lcur = bm["Lb"].copy()
-    Pcur = bm["Plo"].copy()  # unfolded point of the edge at level Lcur
+    edges = bm["Plo"] is not None   # beam edges followed (``trace_exact(bounds=True)``)
+    Pcur = bm["Plo"].copy() if edges else None  # unfolded point of the edge at level Lcur
     pos = v0.copy()
     act = np.arange(n)
     hits, escapes = [], []
@@ -574,7 +600,7 @@ def _visibility_scan(g: _Geometry, bm: dict):
             valid = (bend[act] > pos[act, None]) & (bound[act] >= Lcur[act, None])
         has = valid.any(1)
         gone = act[~has]
-        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
+        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone] if edges else None))
         act = act[has]
         if not act.size:
             break
@@ -588,7 +614,8 @@ def _visibility_scan(g: _Geometry, bm: dict):
         sv = dxa * hv - dha * xv
         sv[vi > end[act][None, :]] = -np.inf
         Q = np.maximum.accumulate(sv, axis=0)
-        am = np.maximum.accumulate(np.where(sv >= Q, k, 0), axis=0)  # row of the running-max vertex
+        if edges:
+            am = np.maximum.accumulate(np.where(sv >= Q, k, 0), axis=0)  # row of the running-max vertex
         lo = np.maximum(Q[:-1], Lc)
         hi = np.minimum(Q[1:], La_a)
         keep = (hi - lo) > 0.0
@@ -601,40 +628,43 @@ def _visibility_scan(g: _Geometry, bm: dict):
             t1 = np.clip((hk - sB) / den + 1.0, 0.0, 1.0)
             useg = u[r] + w
             ar = act[r]
-            U = (bm["R"][ar], bm["tr"][ar])
-            # lower edge: the occluding vertex if it is above the current level, else the beam's own edge
-            occ = Q[:-1][keep] > Lc[r]
-            va = u[r] + am[:-1][keep]
-            fa = o[ar] * L + va
-            p_lo = np.where(occ[:, None], _apply(U, g.Xf[fa], g.Hf[fa]), Pcur[ar])
-            # upper edge: the segment end vertex if it is below the beam top, else the beam's own edge
-            capped = Q[1:][keep] < La_a[r]
-            fb_ = o[ar] * L + useg + 1
-            p_hi = np.where(capped[:, None], _apply(U, g.Xf[fb_], g.Hf[fb_]), bm["Phi"][ar])
+            p_lo = p_hi = None
+            if edges:
+                U = (bm["R"][ar], bm["tr"][ar])
+                # lower edge: the occluding vertex if it is above the current level, else the beam's own edge
+                occ = Q[:-1][keep] > Lc[r]
+                va = u[r] + am[:-1][keep]
+                fa = o[ar] * L + va
+                p_lo = np.where(occ[:, None], _apply(U, g.Xf[fa], g.Hf[fa]), Pcur[ar])
+                # upper edge: the segment end vertex if it is below the beam top, else the beam's own edge
+                capped = Q[1:][keep] < La_a[r]
+                fb_ = o[ar] * L + useg + 1
+                p_hi = np.where(capped[:, None], _apply(U, g.Xf[fb_], g.Hf[fb_]), bm["Phi"][ar])
             hits.append((ar, o[ar], useg % P, useg // P, t0, t1, hk - lk, p_lo, p_hi))
         raised = Q[-1] > Lc
         if raised.any():
             ra = act[raised]
-            vr = u[raised] + am[-1][raised]
-            fr = o[ra] * L + vr
-            Pcur[ra] = _apply((bm["R"][ra], bm["tr"][ra]), g.Xf[fr], g.Hf[fr])
+            if edges:
+                vr = u[raised] + am[-1][raised]
+                fr = o[ra] * L + vr
+                Pcur[ra] = _apply((bm["R"][ra], bm["tr"][ra]), g.Xf[fr], g.Hf[fr])
             Lcur[ra] = Q[-1][raised]
         pos[act] = u + G
         done = Lcur[act] >= La_a
         out_of_window = ~done & (pos[act] >= end[act])
         gone = act[out_of_window]
-        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone]))
+        escapes.append((gone, La[gone] - Lcur[gone], Pcur[gone] if edges else None))
         act = act[~done & ~out_of_window]
     keys = ("beam", "o", "seg", "shift", "t0", "t1", "width", "P0", "P1")
     if hits:
-        hit = {key: np.concatenate([h[i] for h in hits]) for i, key in enumerate(keys)}
+        hit = {key: np.concatenate([h[i] for h in hits]) if (edges or i < 7) else None for i, key in enumerate(keys)}
     else:
         hit = {key: np.zeros((0, 2) if key in ("P0", "P1") else 0, np.intp if i < 4 else np.float64)
-               for i, key in enumerate(keys)}
+               if (edges or i < 7) else None for i, key in enumerate(keys)}
     esc = {"beam": np.concatenate([e[0] for e in escapes]).astype(np.intp),
            "width": np.concatenate([e[1] for e in escapes]),
-           "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2)}
-    esc["Phi"] = bm["Phi"][esc["beam"]]
+           "Plo": np.concatenate([e[2] for e in escapes]).reshape(-1, 2) if edges else None}
+    esc["Phi"] = bm["Phi"][esc["beam"]] if edges else None
     return hit, esc
 
 
@@ -648,16 +678,8 @@ def _record(out: dict, bm: dict, esc: dict, bounce: int, inc: np.ndarray, phi_i:
     b, width, smp = b[ok], width[ok], smp[ok]
     dxo = np.where(bm["o"][b] == 0, bm["dx"][b], -bm["dx"][b])
     w = width / inc[smp]
-    # width(phi) = |D x d_i(phi)| = |-D_x cos(phi) + D_h sin(phi)|, signed positive at the sample
-    D = esc["Phi"][ok] - esc["Plo"][ok]
-    a, bb = -D[:, 0], D[:, 1]
-    sgn = np.where(a * np.cos(phi_i[smp]) + bb * np.sin(phi_i[smp]) >= 0.0, 1.0, -1.0)
-    out["ab"].append(np.stack([a * sgn, bb * sgn], -1))
-    # level coefficients (x, -h) of the two points; the lower one first (width = A cos + B sin > 0)
-    c_lo = np.stack([esc["Phi"][ok][:, 0], -esc["Phi"][ok][:, 1]], -1)
-    c_hi = np.stack([esc["Plo"][ok][:, 0], -esc["Plo"][ok][:, 1]], -1)
-    pos = (sgn > 0)[:, None]
-    out["bd"].append(np.stack([np.where(pos, c_lo, c_hi), np.where(pos, c_hi, c_lo)], 1))
+    if esc["Phi"] is not None:
+        _record_edges(out, esc, ok, phi_i[smp])
     out["sample"].append(smp)
     out["pid"].append(bm["pid"][b])
     out["nb"].append(np.full(b.size, bounce))
@@ -667,3 +689,17 @@ def _record(out: dict, bm: dict, esc: dict, bounce: int, inc: np.ndarray, phi_i:
         out["f"].append(bm["f"][b] * w[:, None, None])
     if bm.get("cp") is not None:
         out["cp"].append(bm["cp"][b])
+
+
+def _record_edges(out: dict, esc: dict, ok, phi) -> None:
+    """``flux_ab`` and ``bounds`` of the leaving beams ``esc[ok]`` (incident angles ``phi``)."""
+    # width(phi) = |D x d_i(phi)| = |-D_x cos(phi) + D_h sin(phi)|, signed positive at the sample
+    D = esc["Phi"][ok] - esc["Plo"][ok]
+    a, bb = -D[:, 0], D[:, 1]
+    sgn = np.where(a * np.cos(phi) + bb * np.sin(phi) >= 0.0, 1.0, -1.0)
+    out["ab"].append(np.stack([a * sgn, bb * sgn], -1))
+    # level coefficients (x, -h) of the two points; the lower one first (width = A cos + B sin > 0)
+    c_lo = np.stack([esc["Phi"][ok][:, 0], -esc["Phi"][ok][:, 1]], -1)
+    c_hi = np.stack([esc["Plo"][ok][:, 0], -esc["Plo"][ok][:, 1]], -1)
+    pos = (sgn > 0)[:, None]
+    out["bd"].append(np.stack([np.where(pos, c_lo, c_hi), np.where(pos, c_hi, c_lo)], 1))

@@ -175,7 +175,8 @@ _POOL: list = []
 GEOMETRY_BYTES = 96 << 20
 _GEOMETRY: dict = {}          # (vertices hash, MAX_BOUNCES, MIN_ENERGY) -> {phi: per-direction records}
 _GEOMETRY_LOCK = threading.Lock()
-_FIELDS = ("pid", "bounces", "phi_o", "weight", "flux_ab", "bounds", "cos_path")
+#: what the store keeps of an exit (the view slices read no beam edges: ``trace_exact(bounds=False)``)
+_FIELDS = ("pid", "bounces", "phi_o", "weight", "cos_path")
 
 
 def _geometry_key(verts) -> tuple:
@@ -185,13 +186,13 @@ def _geometry_key(verts) -> tuple:
 
 
 def _store_bytes(store: dict) -> int:
-    return sum(v[8] for v in store.values())
+    return sum(v[6] for v in store.values())
 
 
 def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
     """Per-direction records of ``phi`` [n]: (``_FIELDS`` arrays, lost, bytes[, Fresnel weights]) from the store;
     the directions not stored yet are traced (``TRACE_WORKERS`` threads) with ``fresnel`` at ``cos_theta`` and
-    come back with the trace's own Fresnel weights as a 10th entry (the store keeps their geometry only).  When
+    come back with the trace's own Fresnel weights as an 8th entry (the store keeps their geometry only).  When
     every direction is new (and ``phi`` ascending), the trace's ``ExitRecords`` themselves are returned."""
     key = _geometry_key(verts)
     with _GEOMETRY_LOCK:
@@ -208,16 +209,17 @@ def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
         # grouped by direction once (views into one sorted copy per field)
         order = np.argsort(r.sample, kind="stable")
         cuts = np.searchsorted(r.sample[order], np.arange(new.size + 1)).tolist()
-        cols = [getattr(r, f)[order] for f in _FIELDS] + [x[order] for x in extra]
-        row_bytes = sum(c[:1].nbytes for c in cols[:6])
+        cols = [getattr(r, f)[order] for f in _FIELDS[:4]] + [x[order] for x in extra]
+        row_bytes = sum(c[:1].nbytes for c in cols[:4])
+        cp = r.cos_path          # (padded to the longest path: gathered per direction, to its own longest)
         for k in range(new.size):
             a, b = cuts[k], cuts[k + 1]
-            geo = tuple(c[a:b] for c in cols[:6]) + (cols[6][a:b, :int(cols[1][a:b].max(initial=0))].copy(),)
-            have[float(new[k])] = (geo + (float(r.lost[k]), row_bytes * (b - a) + geo[6].nbytes + 200)
-                                   + tuple(c[a:b] for c in cols[7:]))
+            geo = tuple(c[a:b] for c in cols[:4]) + (cp[order[a:b], :int(cols[1][a:b].max(initial=0))],)
+            have[float(new[k])] = (geo + (float(r.lost[k]), row_bytes * (b - a) + geo[4].nbytes + 200)
+                                   + tuple(c[a:b] for c in cols[4:]))
         if GEOMETRY_BYTES > 0:
             with _GEOMETRY_LOCK:
-                store.update((float(p), have[float(p)][:9]) for p in new)
+                store.update((float(p), have[float(p)][:7]) for p in new)
                 total = sum(_store_bytes(v) for v in _GEOMETRY.values())
                 while total > GEOMETRY_BYTES and _GEOMETRY:
                     oldest = next(iter(_GEOMETRY))
@@ -230,7 +232,7 @@ def _geometry_records(verts, phi, fresnel=None, cos_theta=()):
 def _trace_directions(verts, phi, fresnel, cos_theta, cos_path=False):
     def run(p, F=fresnel, cs=cos_theta, cp=cos_path):
         return trace_exact(verts, p, F if len(cs) else None, tuple(cs),
-                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cp)
+                           max_bounces=MAX_BOUNCES, min_energy=MIN_ENERGY, cos_path=cp, bounds=False)
 
     if TRACE_HELPER and phi.ndim == 1 and phi.size >= _HELPER_MIN:
         got = _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run)
@@ -262,7 +264,7 @@ HELPER_OWN_SESSION = True
 _HELPER_MIN = 24              # fewer new directions: traced here (the round trip costs ~1 ms)
 _HELPER: dict = {"proc": None}
 _HELPER_LOCK = threading.Lock()
-_HELPER_FIELDS = ("sample", "pid", "bounces", "phi_o", "weight", "flux_ab", "lost", "bounds", "cos_path")
+_HELPER_FIELDS = ("sample", "pid", "bounces", "phi_o", "weight", "lost", "cos_path")
 _HELPER_CODE = r"""
 import importlib.util, pickle, sys
 import numpy as np
@@ -279,7 +281,7 @@ while True:
     except EOFError:
         break
     try:
-        r = beam.trace_exact(verts, phi, None, (), cos_path=True, **kw)
+        r = beam.trace_exact(verts, phi, None, (), cos_path=True, bounds=False, **kw)
         res = {f: getattr(r, f) for f in sys.argv[2].split(",")}
         cp = res.pop("cos_path")
         res["cos_flat"] = cp[np.arange(cp.shape[1])[None, :] < r.bounces[:, None]]   # no padding
@@ -412,7 +414,7 @@ def _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run):
         flat, width = res.pop("cos_flat"), int(res.pop("cos_width"))
         cp = np.zeros((res["bounces"].size, width))
         cp[np.arange(width)[None, :] < res["bounces"][:, None]] = flat
-        theirs = ExitRecords(fresnel=None, cos_path=cp, **res)
+        theirs = ExitRecords(fresnel=None, cos_path=cp, flux_ab=None, bounds=None, **res)
         if mine.fresnel is not None:
             theirs.fresnel = path_fresnel(theirs.cos_path, theirs.bounces, theirs.weight, fresnel,
                                           np.asarray(cos_theta, np.float64))
@@ -427,7 +429,8 @@ def _helper_trace(verts, phi, fresnel, cos_theta, cos_path, run):
 def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     """Exit records of view directions ``phi`` (``beam.ExitRecords``; Fresnel weights at ``cos_theta`` when
     ``fresnel`` is given), from the per-profile geometry store (``GEOMETRY_BYTES``): the records of each direction
-    are those of ``beam.trace_exact`` bit for bit, grouped by direction (in its order within a direction)."""
+    are those of ``beam.trace_exact`` bit for bit, grouped by direction (in its order within a direction), without
+    the beam edges (``flux_ab``, ``bounds`` None: ``trace_exact(bounds=False)``, which the slices do not read)."""
     phi = np.clip(np.asarray(phi, np.float64), -0.5 * np.pi + _EDGE, 0.5 * np.pi - _EDGE)
     verts = profile.periodic_vertices()
     if GEOMETRY_BYTES <= 0 or phi.ndim != 1 or phi.size == 0 or not np.all(np.isfinite(phi)):
@@ -438,17 +441,17 @@ def _trace(profile: Profile, phi, fresnel=None, cos_theta=()):
     if isinstance(recs, ExitRecords):      # every direction traced just now
         return recs
     sample = np.repeat(np.arange(phi.size), [r[0].size for r in recs]).astype(np.int64)
-    pid, nb, phi_o, w, ab, bd = (np.concatenate([r[q] for r in recs]) for q in range(6))
-    cp = _pad_cat([r[6] for r in recs])                                  # bounce cosines, zero-padded
+    pid, nb, phi_o, w = (np.concatenate([r[q] for r in recs]) for q in range(4))
+    cp = _pad_cat([r[4] for r in recs])                                  # bounce cosines, zero-padded
     fw = None
     if F is not None:           # stored directions: weighted now (traced ones carry the trace's own weights)
-        old = [r for r in recs if len(r) == 9]
-        done = iter(np.split(path_fresnel(_pad_cat([r[6] for r in old]), np.concatenate([r[1] for r in old]),
+        old = [r for r in recs if len(r) == 7]
+        done = iter(np.split(path_fresnel(_pad_cat([r[4] for r in old]), np.concatenate([r[1] for r in old]),
                                           np.concatenate([r[3] for r in old]), F, cs),
                              np.cumsum([r[0].size for r in old])[:-1])) if old else iter(())
-        fw = np.concatenate([r[9] if len(r) > 9 else next(done) for r in recs])
-    return ExitRecords(sample=sample, pid=pid, bounces=nb, phi_o=phi_o, weight=w, fresnel=fw, flux_ab=ab,
-                       lost=np.array([r[7] for r in recs]), bounds=bd, cos_path=cp)
+        fw = np.concatenate([r[7] if len(r) > 7 else next(done) for r in recs])
+    return ExitRecords(sample=sample, pid=pid, bounces=nb, phi_o=phi_o, weight=w, fresnel=fw, flux_ab=None,
+                       lost=np.array([r[5] for r in recs]), bounds=None, cos_path=cp)
 
 
 def _merge(parts, idx, E):
@@ -460,7 +463,8 @@ def _merge(parts, idx, E):
     return type(parts[0])(
         sample=np.concatenate([i[r.sample] for r, i in zip(parts, idx)]), pid=cat("pid"), bounces=cat("bounces"),
         phi_o=cat("phi_o"), weight=cat("weight"), fresnel=None if parts[0].fresnel is None else cat("fresnel"),
-        flux_ab=cat("flux_ab"), lost=lost, bounds=None if parts[0].bounds is None else cat("bounds"),
+        flux_ab=None if parts[0].flux_ab is None else cat("flux_ab"), lost=lost,
+        bounds=None if parts[0].bounds is None else cat("bounds"),
         cos_path=None if parts[0].cos_path is None else _pad_cat([r.cos_path for r in parts]))
 
 
@@ -511,10 +515,11 @@ def _bin_rows(smp, ph, w, bounces, n, M, fw=None):
     if fw is None:
         return rows
     T, C = fw.shape[1:]
-    fm = np.zeros((n * M, T, C))
-    for t in range(T):
-        for c in range(C):
-            fm[:, t, c] = np.bincount(key, fw[:, t, c], minlength=n * M)
+    # one bincount over (bin, θo sample, channel): each sum adds the same exits in the same order as one
+    # bincount per (t, c) did (the same numbers, bit for bit), in one pass instead of T C
+    TC = T * C
+    fm = np.bincount((key[:, None] * TC + np.arange(TC)[None, :]).ravel(), np.reshape(fw, (-1,)),
+                     minlength=n * M * TC)
     return rows + (fm.reshape(n, M, T, C),)
 
 
@@ -552,11 +557,19 @@ def interval_moments(lo, hi):
     return np.stack([keep, ks * sm, ks * cm, keep * 0.5 * (1.0 - (cm * cm - sm * sm) * sinc * ch)], -1)
 
 
-def _row_moments(mass, centroid, even, phi_node, phi_o):
-    """Moments [..., 4] the shader renders from rows (mass [..., M] or [..., M, C]) used at view phi_o."""
+def _row_moments(mass, centroid, even, phi_node, phi_o, sparse: bool = False):
+    """Moments [..., 4] the shader renders from rows (mass [..., M] or [..., M, C]) used at view phi_o.
+    ``sparse``: the bins' interval moments only where the row has mass (mass [..., M, 0] > 0), zeros elsewhere,
+    which the mass multiplies by 0 either way: the same sums but for the sign of an exact zero (the refinement's
+    errors, absolute values, do not see it)."""
     M = centroid.shape[-1]
     lo, hi = aim_interval(M, centroid, even, phi_node, phi_o)
-    im = interval_moments(lo, hi)                                                     # [..., M, 4]
+    if sparse:
+        nz = (mass if mass.ndim == centroid.ndim else mass[..., 0]) > 0
+        im = np.zeros(lo.shape + (4,))
+        im[nz] = interval_moments(lo[nz], hi[nz])                                     # [..., M, 4]
+    else:
+        im = interval_moments(lo, hi)                                                 # [..., M, 4]
     if mass.ndim == centroid.ndim:
         return np.matmul(mass[..., None, :], im)[..., 0, :]
     return np.matmul(np.swapaxes(mass, -1, -2), im)
@@ -674,7 +687,7 @@ def _phi_nodes(profile, M, base, levels, tol, fresnel, max_nodes, theta=None, re
             rows = np.stack([cache[int(i)][0] for i in node])                        # [n, M, 1 + C]
             cen = np.stack([cache[int(i)][1] for i in node])
             ev = np.stack([cache[int(i)][2] for i in node])
-            model = model + p[:, None, None] * _row_moments(rows, cen, ev, ang(node)[:, None], pt[:, None])
+            model = model + p[:, None, None] * _row_moments(rows, cen, ev, ang(node)[:, None], pt[:, None], True)
         exact = np.stack([cache[int(t)][3] for t in t_idx])                          # [n, 1 + C, 4]
         errs = _moment_error(model, exact) / _relax(pt)
         worst = float(errs.max())
@@ -715,7 +728,8 @@ def _theta_basis(profile, fresnel, phi, M, NT, tol, kmax, group=1, known=None):
     # exact slice moments per node, theta sample and channel (for the rank choice)
     e = -0.5 * np.pi + (np.arange(M) + 0.5) * (np.pi / M)
     basis_f = np.stack([np.ones(M), np.sin(e), np.cos(e)], 0)                         # [3, M]
-    exact = np.tensordot(fm_b, basis_f, axes=([1], [1]))                              # [S, T, C, 3]
+    # (a batched matmul over the bins: tensordot's sums, without its transposed copy of fm_b)
+    exact = np.matmul(basis_f, fm_b.reshape(S, M, -1)).reshape(S, 3, NT, C).transpose(0, 2, 3, 1)   # [S, T, C, 3]
     # the model's moments: Y is constant over a group of bins, so sum mass x moment function per group first
     gq = np.matmul(mass_b.reshape(S, Mg, group)[:, :, None, :],
                    basis_f.reshape(3, Mg, group).transpose(1, 2, 0)[None])[:, :, 0, :]    # [S, Mg, 3]

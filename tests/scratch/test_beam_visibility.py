@@ -118,6 +118,31 @@ def test_small_batches_equal_one_batch(monkeypatch):
         np.testing.assert_array_equal(a[key], b[key])
 
 
+@pytest.mark.parametrize("method", ["hierarchy", "scan", "hierarchy+tail"])
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_trace_without_beam_edges_equals_the_full_trace(name, method, monkeypatch):
+    """``trace_exact(bounds=False)`` (what the view slices trace: no unfolding maps, no edge points) gives the
+    full trace's records bit for bit, in the same order, on every visibility method and in small batches;
+    only ``flux_ab`` and ``bounds`` are left out."""
+    verts = PROFILES[name].periodic_vertices()
+    phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
+    F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 10**9 if method == "scan" else 0)
+    tail = "tail" in method
+    if tail:
+        monkeypatch.setattr(beam, "_TAIL_ELEMS", 3 * (verts.shape[0] - 1))
+    for batch in (None, 5):
+        if batch:   # (batches change the records' order: compared with a full trace in the same batches)
+            monkeypatch.setattr(beam, "_VIS_BEAMS", batch)
+            monkeypatch.setattr(beam, "_VIS_ELEMS", batch * 8)
+        full = beam.trace_exact(verts, phi, F, (1.0, 0.5), scan_tail=tail, cos_path=True)
+        lean = beam.trace_exact(verts, phi, F, (1.0, 0.5), scan_tail=tail, cos_path=True, bounds=False)
+        assert lean.flux_ab is None and lean.bounds is None
+        for key in ("sample", "pid", "bounces", "phi_o", "weight", "fresnel", "lost", "cos_path"):
+            np.testing.assert_array_equal(getattr(lean, key), getattr(full, key), err_msg=key)
+    assert full.sample.size > phi.size
+
+
 def test_polylines_that_are_not_height_fields_are_refused():
     """The tracer relies on x increasing (profiles.tabulated enforces it); a hand-made polyline that folds
     back gets a ValueError instead of a wrong table."""
