@@ -90,7 +90,9 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
            "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
            "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS",
-           "lambert_nodes", "floor_split", "closure_albedo"]
+           "lambert_nodes", "floor_split", "closure_albedo",
+           "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "ggx_albedo", "ggx_nodes",
+           "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo"]
 
 #: Largest ωi grid side.
 MAX_RES = 48
@@ -437,8 +439,7 @@ class TabulatedBRDF:
         if not np.all(np.isfinite(out)):
             raise ValueError("f: returned NaN or inf on the table grid")
         info = dict(info or {})
-        if half:
-            info.setdefault("sub", sub)                 # the cell average's rule (``lambert_nodes``)
+        info.setdefault("sub", sub)                     # the cell average's rule (``lambert_nodes``, ``ggx_nodes``)
         return cls(np.maximum(out, 0.0), res, bool(iso), info, bool(half), float(extent), **vg)
 
 
@@ -487,7 +488,8 @@ class ClosureTables:
     ``iso``, ``alpha`` (closure GGX alpha), ``half`` / ``extent`` (half-vector grid, module docstring);
     ``guide`` (n_o, res²) int32: the guide table of each CDF (``guide_table``); ``kd`` (3,) the smooth
     floor's albedo (``floor_split``): the shader adds a Diffuse closure of weight kd, and ``F`` / ``cdf`` are
-    those of the residual r = f - kd/π."""
+    those of the residual r = f - kd/π (- ks g); ``ks`` (3,), ``alpha_g``: the glossy floor (``glossy_floor_split``:
+    a GGX closure of α ``alpha_g`` and colour ks, none when ks = 0)."""
     F: np.ndarray
     cdf: np.ndarray
     res: int
@@ -499,11 +501,15 @@ class ClosureTables:
     view_a: np.ndarray | None = None
     view_b: np.ndarray | None = None
     kd: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ks: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    alpha_g: float = 0.0
 
     def __post_init__(self):
         if self.guide is None:
             self.guide = guide_table(self.cdf)
         self.kd = np.asarray(self.kd, np.float64).reshape(3)
+        self.ks = np.asarray(self.ks, np.float64).reshape(3)
+        self.alpha_g = float(self.alpha_g)
 
     @property
     def n_o(self) -> int:
@@ -592,16 +598,262 @@ def floor_split(brdf: TabulatedBRDF, floor: bool = True):
     return kd, res_brdf
 
 
-def closure_albedo(brdf: TabulatedBRDF, wo, floor: bool = True, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
+# ----------------------------------------------------------------------------- the glossy floor
+#: ``floor="auto"`` (the default, ``floor=True``) adds the glossy floor when it takes at least this share of the
+#: table's hemispherical albedo (else the Diffuse floor alone): the extra Glossy closure costs ~3 % per sample.
+GLOSSY_SHARE_MIN = 0.1
+#: the floor modes of ``floor_parts`` / ``closure_tables`` (True = "auto", False = "none")
+FLOOR_MODES = ("auto", "glossy", "diffuse", "none")
+#: views (polar angles, radians) and their weights cos θ sin θ dθ of the hemispherical albedo averages
+_AVG_THETA = (np.arange(12) + 0.5) * (0.5 * np.pi / 12)
+_AVG_W = np.cos(_AVG_THETA) * np.sin(_AVG_THETA) / np.sum(np.cos(_AVG_THETA) * np.sin(_AVG_THETA))
+
+
+def floor_mode(floor) -> str:
+    """The floor mode of a ``floor`` argument: True -> "auto", False / None -> "none", or one of ``FLOOR_MODES``
+    (ValueError naming ``floor`` otherwise)."""
+    if floor is True:
+        return "auto"
+    if floor is False or floor is None:
+        return "none"
+    if isinstance(floor, str) and floor in FLOOR_MODES:
+        return floor
+    raise ValueError(f"floor: expected True, False or one of {FLOOR_MODES}, got {floor!r}")
+
+
+def ggx_albedo(cos_o, alpha, n: int = 768) -> np.ndarray:
+    """Directional albedo ∫ g cos θi dωi of Cycles' GGX closure (F = 1, height-correlated Smith G2, single
+    scattering; ``_ggx_unit``) at views of cos θo ``cos_o`` (N,), dimensionless.  With f cos θi dωi =
+    D G2 (ωo·h) / cos θo dωh and h drawn from D(h) cos θh dωh = du dφ / 2π (tan² θh = α² u / (1 - u)):
+    E = E_h[G2 (ωo·h) / (cos θo cos θh)], ωi above the horizon; midpoint rule on n x n in (u, φ)."""
+    mu = np.clip(np.atleast_1d(np.asarray(cos_o, np.float64)), 1e-4, 1.0)
+    u = (np.arange(n) + 0.5) / n
+    ph = (np.arange(n) + 0.5) / n * 2 * np.pi
+    th = np.arctan(alpha * np.sqrt(u / (1.0 - u)))
+    ch, sh = np.cos(th)[:, None], np.sin(th)[:, None]
+    h = np.stack(np.broadcast_arrays(sh * np.cos(ph), sh * np.sin(ph), ch), -1).reshape(-1, 3)
+    out = np.empty(len(mu))
+    for i, m in enumerate(mu):
+        wo = np.array([np.sqrt(1.0 - m * m), 0.0, m])
+        oh = h @ wo
+        wi = 2.0 * oh[:, None] * h - wo
+        ok = (oh > 0) & (wi[:, 2] > 0)
+        a2 = alpha * alpha
+
+        def lam(z):
+            z2 = np.clip(z * z, 1e-12, 1.0)
+            return 0.5 * (np.sqrt(1.0 + a2 * (1.0 - z2) / z2) - 1.0)
+        G2 = 1.0 / (1.0 + lam(wi[:, 2]) + lam(m))
+        out[i] = np.sum(np.where(ok, G2 * oh / (m * h[:, 2]), 0.0)) / len(h)
+    return out
+
+
+def _hemi_average(E) -> float:
+    """Hemispherical average ∫ E(θo) cos θo dωo / π of a directional albedo sampled at ``_AVG_THETA``."""
+    return float(np.sum(np.asarray(E) * _AVG_W))
+
+
+def ggx_nodes(brdf: TabulatedBRDF, alpha: float) -> np.ndarray:
+    """Cycles' GGX (F = 1, ``_ggx_unit``, α ``alpha``) in ``brdf``'s layout (res², n_o): its values at the
+    table's nodes, cell-averaged over ``info["sub"]``² points as ``from_function`` built the table (half tables:
+    ρ = g cos θi cos θo J, as ``lambert_nodes``).  The glossy floor's g where the residual is stored."""
+    info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    half = bool(getattr(brdf, "half", False))
+    sub = int(info.get("sub", 4 if half else 1))
+    va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
+    g = TabulatedBRDF.from_function(lambda wi, wo: _ggx_unit(wi, wo, alpha), brdf.res, bool(brdf.iso),
+                                    n_theta=brdf.n_o if brdf.iso else 32, sub=sub, half=half,
+                                    extent=float(getattr(brdf, "extent", 1.0)) if half else 1.0, view_a=va, view_b=vb)
+    return g.table[..., 0]
+
+
+def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
+    """Per channel, the (kd, ks) >= 0 maximising the floor's albedo kd + ks Eg subject to kd lam + ks g <= t at
+    every node (t (N, 3), lam, g (N,)).  ks(kd) = min over nodes of (t - kd lam) / g is concave in kd, so the
+    objective is too: a grid of K values of kd in [0, kd_max], refined ``levels`` times around the best.
+    Every returned pair satisfies the constraints exactly (ks is computed for the returned kd)."""
+    pos_l, pos_g = lam > 0, g > 1e-12 * max(float(g.max()), 1e-300)
+    kd_out, ks_out = np.zeros(3), np.zeros(3)
+    for c in range(3):
+        tc = t[:, c]
+        kd_max = max(float((tc[pos_l] / lam[pos_l]).min()), 0.0) if pos_l.any() else 0.0
+        tg, lg, gg = tc[pos_g], lam[pos_g], g[pos_g]
+
+        def ks_of(kd):
+            return np.maximum(((tg[None, :] - kd[:, None] * lg[None, :]) / gg[None, :]).min(1), 0.0)
+        lo, hi = 0.0, kd_max
+        best = (0.0, float(ks_of(np.zeros(1))[0]) if pos_g.any() else 0.0)
+        for _ in range(levels):
+            kds = np.linspace(lo, hi, K)
+            kss = ks_of(kds) if pos_g.any() else np.zeros(K)
+            v = kds + Eg * kss
+            i = int(np.argmax(v))
+            if v[i] >= best[0] + Eg * best[1]:
+                best = (float(kds[i]), float(kss[i]))
+            step = (hi - lo) / (K - 1)
+            lo, hi = max(kds[i] - step, 0.0), min(kds[i] + step, kd_max)
+        kd_out[c], ks_out[c] = best
+    return kd_out, ks_out
+
+
+@dataclass
+class FloorParts:
+    """The floors of a table (``floor_parts``): f = kd/π + ks g_α + r at every node.  ``kd`` (3,) Diffuse
+    albedo, ``ks`` (3,) and ``alpha_g`` the glossy floor (Cycles' GGX closure of α ``alpha_g``, F = 1, colour
+    ks; ks = 0: none), ``residual`` r (a ``TabulatedBRDF``, >= 0), ``mode`` the mode used, ``share`` the
+    glossy floor's share of the table's hemispherical albedo (ks Ē_g / Ē_f, channel mean)."""
+    kd: np.ndarray
+    ks: np.ndarray
+    alpha_g: float
+    residual: TabulatedBRDF
+    mode: str
+    share: float = 0.0
+
+
+_FLOOR_CACHE: dict = {}
+
+
+def _table_key(brdf) -> tuple:
+    import hashlib
+    h = hashlib.sha1(np.ascontiguousarray(brdf.table, np.float64).tobytes())
+    for a in (getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)):
+        if a is not None:
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    return (h.hexdigest(), brdf.res, bool(brdf.iso), bool(getattr(brdf, "half", False)),
+            float(getattr(brdf, "extent", 1.0)), int(info.get("sub", 0)))
+
+
+def glossy_floor_alpha_min(brdf: TabulatedBRDF) -> float:
+    """The smallest α of the glossy floor's search: one cell's angular size tan(π Z / (2 res)) (Z the half table's
+    zoom): a GGX lobe narrower than a cell could sit between the nodes, where the constraint r >= 0 does not
+    see it, and add energy the table does not hold."""
+    Z = float(getattr(brdf, "extent", 1.0)) if getattr(brdf, "half", False) else 1.0
+    return float(np.tan(0.5 * np.pi * Z / brdf.res))
+
+
+def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, n_grid: int = 10):
+    """The glossy floor of ``brdf``: f = kd/π + ks g_α + r, g Cycles' GGX closure (F = 1, height-correlated
+    Smith G2, single scattering: what the Glossy BSDF node (GGX) and OSL ``microfacet("ggx")`` render; ``_ggx_unit``),
+    with r >= 0 at every table node (``ggx_nodes``: g in the table's layout; bilinear interpolation then keeps
+    r >= 0 everywhere).  For a given α, (kd, ks) per channel maximise the floor's albedo kd + ks Ē_g (Ē the
+    hemispherical average of ``ggx_albedo``) under those constraints (``_best_split``, a 2-variable linear
+    programme); α (``alpha`` if given) maximises that albedo summed over channels: a log grid of ``n_grid`` values
+    in [``glossy_floor_alpha_min``, 1], then a bounded golden-section search between the best value's neighbours.
+    What renders: kd/π + ks g (exact, Cycles evaluates it) + the interpolated r, so the floor's parts are not
+    interpolated (a GGX lobe in the table renders as the analytic lobe where the α matches).  Half tables zoomed
+    to a lobe (``extent`` < 1: f = 0 outside the zoom) get no floor.  Returns ``FloorParts`` (mode "glossy")."""
+    half = bool(getattr(brdf, "half", False))
+    table = np.asarray(brdf.table, np.float64)
+    D, n_o = table.shape[:2]
+    va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
+    vg = {} if va is None else {"view_a": va, "view_b": vb}
+
+    def residual(t):
+        return TabulatedBRDF(np.maximum(t, 0.0), brdf.res, bool(brdf.iso), dict(getattr(brdf, "info", {}) or {}),
+                             half, float(getattr(brdf, "extent", 1.0)) if half else 1.0, **vg)
+    if half and brdf.extent < 1.0:
+        return FloorParts(np.zeros(3), np.zeros(3), 0.0, residual(table), "glossy", 0.0)
+    key = ("glossy", alpha, n_grid) + _table_key(brdf)
+    if key in _FLOOR_CACHE:
+        return _FLOOR_CACHE[key]
+    lam = lambert_nodes(brdf).ravel()
+    t = table.reshape(-1, 3)
+    mu = np.cos(_AVG_THETA)
+    memo = {}
+
+    def solve(a):
+        a = float(a)
+        if a not in memo:
+            g = ggx_nodes(brdf, a).ravel()
+            Eg = _hemi_average(ggx_albedo(mu, a, 128))
+            kd, ks = _best_split(t, lam, g, Eg)
+            memo[a] = (float(np.sum(kd + ks * Eg)), kd, ks, g, Eg)
+        return memo[a]
+    if alpha is not None:
+        a_best = float(validation.check_range("alpha_g", alpha, 1e-3, 1.0))
+    else:
+        grid = np.geomspace(glossy_floor_alpha_min(brdf), 1.0, n_grid)
+        vals = [solve(a)[0] for a in grid]
+        i = int(np.argmax(vals))
+        lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n_grid - 1)])
+        gr = 0.5 * (np.sqrt(5.0) - 1.0)
+        x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+        for _ in range(10):                               # golden section in log α (unimodal near the best)
+            if solve(np.exp(x1))[0] >= solve(np.exp(x2))[0]:
+                hi, x2 = x2, x1
+                x1 = hi - gr * (hi - lo)
+            else:
+                lo, x1 = x1, x2
+                x2 = lo + gr * (hi - lo)
+        a_best = max(memo, key=lambda a: memo[a][0])
+    _, kd, ks, g, Eg = solve(a_best)
+    if kd.max() <= 1e-6:
+        kd = np.zeros(3)
+    if ks.max() <= 1e-6:
+        ks = np.zeros(3)
+    r = t - kd[None, :] * lam[:, None] - ks[None, :] * g[:, None]       # >= 0 up to rounding
+    E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
+    share = float(np.mean(ks) * Eg / E_f) if E_f > 0 else 0.0
+    out = FloorParts(kd, ks, float(a_best) if ks.any() else 0.0, residual(r.reshape(D, n_o, 3)), "glossy", share)
+    if len(_FLOOR_CACHE) > 16:
+        _FLOOR_CACHE.clear()
+    _FLOOR_CACHE[key] = out
+    return out
+
+
+def floor_albedo(tb: ClosureTables, wo) -> np.ndarray:
+    """Directional albedo (N, 3) of the floors of ``tb`` at views wo (N, 3) (z > 0): kd + ks ``ggx_albedo``.
+    A white furnace renders this plus the table closure's mean W A."""
+    wo = _unit_rows("wo", wo)
+    out = np.broadcast_to(tb.kd, (len(wo), 3)).copy()
+    if np.any(tb.ks):
+        out += tb.ks[None, :] * ggx_albedo(wo[:, 2], tb.alpha_g)[:, None]
+    return out
+
+
+def floor_parts(brdf: TabulatedBRDF, floor=True) -> FloorParts:
+    """The floors the shader renders for ``floor`` (``floor_mode``): "none" (False): none; "diffuse": the Diffuse
+    floor alone (``floor_split``); "glossy": Diffuse + glossy floor (``glossy_floor_split``); "auto" (True, the
+    default): the glossy floor when it takes at least ``GLOSSY_SHARE_MIN`` of the table's hemispherical albedo,
+    else the Diffuse floor alone."""
+    mode = floor_mode(floor)
+    if mode in ("auto", "glossy"):
+        parts = glossy_floor_split(brdf)
+        if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN:
+            return parts
+        mode = "diffuse"
+    kd, r = floor_split(brdf, mode == "diffuse")
+    return FloorParts(kd, np.zeros(3), 0.0, r, mode, 0.0)
+
+
+def floor_eval(parts: FloorParts, wi, wo) -> np.ndarray:
+    """f (N, 3) in 1/sr of what the shader renders with floors ``parts``: kd/π + ks g (exact) + r (interpolated)."""
+    wi, wo = _unit_rows("wi", wi), _unit_rows("wo", wo)
+    out = parts.residual.eval(wi, wo)
+    ok = ((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None]
+    out = out + np.where(ok, parts.kd / np.pi, 0.0)
+    if parts.ks.any():
+        out = out + np.where(ok, parts.ks * _ggx_unit(wi, wo, parts.alpha_g)[:, None], 0.0)
+    return out
+
+
+def closure_albedo(brdf: TabulatedBRDF, wo, floor=True, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
     """Directional albedo (N, 3) of what the shader renders for views wo (N, 3): kd (the Diffuse floor, whose
-    cosine-weighted integral is kd) plus the residual's ``albedo`` (``floor_split``)."""
-    kd, r = floor_split(brdf, floor)
-    return kd[None, :] + r.albedo(wo, n_theta, n_phi)
+    cosine-weighted integral is kd) plus ks x the glossy floor's ``ggx_albedo`` plus the residual's ``albedo``
+    (``floor_parts``)."""
+    parts = floor_parts(brdf, floor)
+    wo = _unit_rows("wo", wo)
+    out = parts.kd[None, :] + parts.residual.albedo(wo, n_theta, n_phi)
+    if parts.ks.any():
+        out = out + parts.ks[None, :] * ggx_albedo(wo[:, 2], parts.alpha_g)[:, None]
+    return out
 
 
-def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor: bool = True) -> ClosureTables:
+def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor=True) -> ClosureTables:
     """The proposal CDFs (module docstring) and the float32 table of ``brdf`` for the shader; with ``floor``
-    (default) those of the residual r after the smooth Diffuse floor kd/π (``floor_split``)."""
+    (default True = "auto") those of the residual r after the smooth Diffuse floor kd/π and the glossy floor
+    ks g_α (``floor_parts``; "glossy", "diffuse", "none" / False)."""
     res = brdf.res
     D = res * res
     half = bool(getattr(brdf, "half", False))
@@ -610,7 +862,8 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor: bool 
     if brdf.table.size > MAX_FLOATS:
         raise ValueError(f"table: {brdf.table.size} floats; at most {MAX_FLOATS} are compiled into a shader "
                          f"(lower res or n_theta)")
-    kd, brdf = floor_split(brdf, floor)
+    parts = floor_parts(brdf, floor)
+    kd, brdf = parts.kd, parts.residual
     if half:
         om, omc = _half_cell_integrals(brdf)
     else:
@@ -631,7 +884,7 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor: bool 
     cdf[:, -1] = 1.0
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
     return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha),
-                         half, extent, view_a=va, view_b=vb, kd=kd)
+                         half, extent, view_a=va, view_b=vb, kd=kd, ks=parts.ks, alpha_g=parts.alpha_g)
 
 
 def guide_pick(cdf, guide, o, u) -> np.ndarray:
