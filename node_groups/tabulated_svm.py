@@ -17,7 +17,8 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - the smooth floor (``tabulated_brdf.floor_split``): a Diffuse BSDF of colour kd x Tint added to the Glossy
   (``_floor``), the images holding the residual, as the OSL shader's FLOOR; the glossy floor
-  (``tabulated_brdf.glossy_floor_split``): a second Glossy BSDF (GGX, roughness √α_g, colour ks x Tint), GFLOOR;
+  (``tabulated_brdf.glossy_floor_split``): a second Glossy BSDF (GGX or Beckmann, roughness √α_g, colour ks x Tint),
+  GFLOOR;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
   interpolation of the OSL shader, never bleeding into a neighbour tile); in the EEVEE variant (``ensure(eevee=True)``)
   four Closest lookups weighted by Mix nodes, because EEVEE's Linear lookup picks a mip level from the per-pixel
@@ -71,7 +72,7 @@ def table_hash(tb: tbm.ClosureTables) -> str:
     h.update(repr((tb.res, tb.iso, tb.n_o, float(tb.alpha), tb.half, float(tb.extent), VERSION)).encode())
     h.update(np.asarray(getattr(tb, "kd", np.zeros(3)), np.float32).tobytes())       # the Diffuse floor
     if np.any(getattr(tb, "ks", 0.0)):                # the glossy floor (other tables' hashes unchanged)
-        h.update(np.asarray(tb.ks, np.float32).tobytes() + np.float32(tb.alpha_g).tobytes())
+        h.update(np.asarray(tb.ks, np.float32).tobytes() + np.float32(tb.alpha_g).tobytes() + tb.dist_g.encode())
     if getattr(tb, "view_a", None) is not None:      # view grids only: the hash of other tables is unchanged
         for a in (tb.view_a, tb.view_b):
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -273,13 +274,13 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
 
 def _floor(g, tb: tbm.ClosureTables, tint, bsdf, scale: float = 1.0):
     """The floors (``tabulated_brdf.floor_parts``): a Diffuse BSDF of colour kd x Tint and (glossy floor) a Glossy
-    BSDF (GGX, roughness √α_g, colour ks x Tint, the shading normal) added to the table's Glossy ``bsdf`` (light
+    BSDF (GGX or Beckmann: ``dist_g``, roughness √α_g, colour ks x Tint, the shading normal) added to the table's Glossy ``bsdf`` (light
     sampling sees the lamp at every sample); ``bsdf`` itself when kd = ks = 0.  ``scale`` multiplies both (tests:
     a floor counted twice)."""
     kd = np.asarray(getattr(tb, "kd", np.zeros(3)), np.float64) * scale
     ks = np.asarray(getattr(tb, "ks", np.zeros(3)), np.float64) * scale
     if ks.any():
-        gl = g.node("ShaderNodeBsdfGlossy", distribution="GGX")
+        gl = g.node("ShaderNodeBsdfGlossy", distribution="BECKMANN" if tb.dist_g == "beckmann" else "GGX")
         g._set(gl.inputs["Color"], g.vmath("MULTIPLY", tint, tuple(float(c) for c in ks)))
         g._set(gl.inputs["Roughness"], float(glossy_node_params(tb.alpha_g, tb.alpha_g)[0]))
         bsdf = g.add_shader(gl.outputs["BSDF"], bsdf)

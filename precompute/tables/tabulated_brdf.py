@@ -84,6 +84,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import validation
+from ..cycles import beckmann as _bk
 from .alias import alias_pmf, alias_tables
 
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
@@ -91,7 +92,8 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
            "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
            "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS",
            "lambert_nodes", "floor_split", "closure_albedo",
-           "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "ggx_albedo", "ggx_nodes",
+           "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
+           "glossy_eval", "FLOOR_DISTS",
            "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo"]
 
 #: Largest ωi grid side.
@@ -439,7 +441,7 @@ class TabulatedBRDF:
         if not np.all(np.isfinite(out)):
             raise ValueError("f: returned NaN or inf on the table grid")
         info = dict(info or {})
-        info.setdefault("sub", sub)                     # the cell average's rule (``lambert_nodes``, ``ggx_nodes``)
+        info.setdefault("sub", sub)                     # the cell average's rule (``lambert_nodes``, ``glossy_nodes``)
         return cls(np.maximum(out, 0.0), res, bool(iso), info, bool(half), float(extent), **vg)
 
 
@@ -488,8 +490,8 @@ class ClosureTables:
     ``iso``, ``alpha`` (closure GGX alpha), ``half`` / ``extent`` (half-vector grid, module docstring);
     ``guide`` (n_o, res²) int32: the guide table of each CDF (``guide_table``); ``kd`` (3,) the smooth
     floor's albedo (``floor_split``): the shader adds a Diffuse closure of weight kd, and ``F`` / ``cdf`` are
-    those of the residual r = f - kd/π (- ks g); ``ks`` (3,), ``alpha_g``: the glossy floor (``glossy_floor_split``:
-    a GGX closure of α ``alpha_g`` and colour ks, none when ks = 0)."""
+    those of the residual r = f - kd/π (- ks g); ``ks`` (3,), ``alpha_g``, ``dist_g``: the glossy floor
+    (``glossy_floor_split``: a ``dist_g`` ("ggx" / "beckmann") closure of α ``alpha_g`` and colour ks, none when ks = 0)."""
     F: np.ndarray
     cdf: np.ndarray
     res: int
@@ -503,6 +505,7 @@ class ClosureTables:
     kd: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ks: np.ndarray = field(default_factory=lambda: np.zeros(3))
     alpha_g: float = 0.0
+    dist_g: str = "ggx"
 
     def __post_init__(self):
         if self.guide is None:
@@ -621,15 +624,43 @@ def floor_mode(floor) -> str:
     raise ValueError(f"floor: expected True, False or one of {FLOOR_MODES}, got {floor!r}")
 
 
-def ggx_albedo(cos_o, alpha, n: int = 768) -> np.ndarray:
-    """Directional albedo ∫ g cos θi dωi of Cycles' GGX closure (F = 1, height-correlated Smith G2, single
-    scattering; ``_ggx_unit``) at views of cos θo ``cos_o`` (N,), dimensionless.  With f cos θi dωi =
-    D G2 (ωo·h) / cos θo dωh and h drawn from D(h) cos θh dωh = du dφ / 2π (tan² θh = α² u / (1 - u)):
-    E = E_h[G2 (ωo·h) / (cos θo cos θh)], ωi above the horizon; midpoint rule on n x n in (u, φ)."""
+#: the glossy floor's distributions: Cycles' GGX and Beckmann closures (heavy / light tails)
+FLOOR_DISTS = ("ggx", "beckmann")
+
+
+def _lambda(z, alpha, dist: str):
+    """Cycles' isotropic Smith Λ at cos θ = z: GGX (Heitz 2014 eq. 72) or Cycles' Beckmann approximation
+    (``precompute.cycles.beckmann``)."""
+    z2 = np.clip(z * z, 1e-12, 1.0)
+    s = alpha * alpha * (1.0 - z2) / z2
+    if dist == "beckmann":
+        return _bk.beckmann_lambda_from_sqr_alpha_tan_n(s)
+    return 0.5 * (np.sqrt(1.0 + s) - 1.0)
+
+
+def glossy_eval(wi, wo, alpha, dist: str = "ggx") -> np.ndarray:
+    """The glossy floor's lobe g (N,) in 1/sr: Cycles' isotropic microfacet reflection closure ``dist`` ("ggx":
+    the Glossy node's GGX / OSL ``microfacet("ggx")``; "beckmann"), F = 1, height-correlated Smith G2, single
+    scattering: D G2 / (4 cos θi cos θo) (``precompute.cycles.ggx.bsdf_eval`` / cos θi), 0 below the horizon."""
+    if dist == "ggx":
+        return _ggx_unit(wi, wo, alpha)
+    h = wi + wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    D = _bk.beckmann_aniso_D(alpha, alpha, h)
+    G = 1.0 / (1.0 + _lambda(wi[..., 2], alpha, dist) + _lambda(wo[..., 2], alpha, dist))
+    return D * G / (4.0 * np.maximum(wi[..., 2], 1e-6) * np.maximum(wo[..., 2], 1e-6))
+
+
+def glossy_albedo(cos_o, alpha, dist: str = "ggx", n: int = 768) -> np.ndarray:
+    """Directional albedo ∫ g cos θi dωi of the glossy floor's lobe (``glossy_eval``) at views of cos θo ``cos_o``
+    (N,), dimensionless.  With g cos θi dωi = D G2 (ωo·h) / cos θo dωh and h drawn from D(h) cos θh dωh =
+    du dφ / 2π (GGX: tan² θh = α² u / (1 - u); Beckmann: -α² ln(1 - u)): E = E_h[G2 (ωo·h) / (cos θo cos θh)],
+    ωi above the horizon; midpoint rule on n x n in (u, φ)."""
     mu = np.clip(np.atleast_1d(np.asarray(cos_o, np.float64)), 1e-4, 1.0)
     u = (np.arange(n) + 0.5) / n
     ph = (np.arange(n) + 0.5) / n * 2 * np.pi
-    th = np.arctan(alpha * np.sqrt(u / (1.0 - u)))
+    t2 = -alpha * alpha * np.log1p(-u) if dist == "beckmann" else alpha * alpha * u / (1.0 - u)
+    th = np.arctan(np.sqrt(t2))
     ch, sh = np.cos(th)[:, None], np.sin(th)[:, None]
     h = np.stack(np.broadcast_arrays(sh * np.cos(ph), sh * np.sin(ph), ch), -1).reshape(-1, 3)
     out = np.empty(len(mu))
@@ -638,12 +669,7 @@ def ggx_albedo(cos_o, alpha, n: int = 768) -> np.ndarray:
         oh = h @ wo
         wi = 2.0 * oh[:, None] * h - wo
         ok = (oh > 0) & (wi[:, 2] > 0)
-        a2 = alpha * alpha
-
-        def lam(z):
-            z2 = np.clip(z * z, 1e-12, 1.0)
-            return 0.5 * (np.sqrt(1.0 + a2 * (1.0 - z2) / z2) - 1.0)
-        G2 = 1.0 / (1.0 + lam(wi[:, 2]) + lam(m))
+        G2 = 1.0 / (1.0 + _lambda(wi[:, 2], alpha, dist) + _lambda(np.full(1, m), alpha, dist))
         out[i] = np.sum(np.where(ok, G2 * oh / (m * h[:, 2]), 0.0)) / len(h)
     return out
 
@@ -653,15 +679,15 @@ def _hemi_average(E) -> float:
     return float(np.sum(np.asarray(E) * _AVG_W))
 
 
-def ggx_nodes(brdf: TabulatedBRDF, alpha: float) -> np.ndarray:
-    """Cycles' GGX (F = 1, ``_ggx_unit``, α ``alpha``) in ``brdf``'s layout (res², n_o): its values at the
-    table's nodes, cell-averaged over ``info["sub"]``² points as ``from_function`` built the table (half tables:
-    ρ = g cos θi cos θo J, as ``lambert_nodes``).  The glossy floor's g where the residual is stored."""
+def glossy_nodes(brdf: TabulatedBRDF, alpha: float, dist: str = "ggx") -> np.ndarray:
+    """The glossy floor's lobe (``glossy_eval``, α ``alpha``, ``dist``) in ``brdf``'s layout (res², n_o): its values
+    at the table's nodes, cell-averaged over ``info["sub"]``² points as ``from_function`` built the table (half
+    tables: ρ = g cos θi cos θo J, as ``lambert_nodes``).  The g subtracted where the residual is stored."""
     info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
     half = bool(getattr(brdf, "half", False))
     sub = int(info.get("sub", 4 if half else 1))
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
-    g = TabulatedBRDF.from_function(lambda wi, wo: _ggx_unit(wi, wo, alpha), brdf.res, bool(brdf.iso),
+    g = TabulatedBRDF.from_function(lambda wi, wo: glossy_eval(wi, wo, alpha, dist), brdf.res, bool(brdf.iso),
                                     n_theta=brdf.n_o if brdf.iso else 32, sub=sub, half=half,
                                     extent=float(getattr(brdf, "extent", 1.0)) if half else 1.0, view_a=va, view_b=vb)
     return g.table[..., 0]
@@ -698,16 +724,17 @@ def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
 
 @dataclass
 class FloorParts:
-    """The floors of a table (``floor_parts``): f = kd/π + ks g_α + r at every node.  ``kd`` (3,) Diffuse
-    albedo, ``ks`` (3,) and ``alpha_g`` the glossy floor (Cycles' GGX closure of α ``alpha_g``, F = 1, colour
-    ks; ks = 0: none), ``residual`` r (a ``TabulatedBRDF``, >= 0), ``mode`` the mode used, ``share`` the
-    glossy floor's share of the table's hemispherical albedo (ks Ē_g / Ē_f, channel mean)."""
+    """The floors of a table (``floor_parts``): f = kd/π + ks g + r at every node.  ``kd`` (3,) Diffuse albedo;
+    the glossy floor g: Cycles' ``dist_g`` closure ("ggx" or "beckmann", ``glossy_eval``) of α ``alpha_g``, F = 1,
+    colour ``ks`` (3,) (ks = 0: none); ``residual`` r (a ``TabulatedBRDF``, >= 0); ``mode`` the mode used;
+    ``share`` the glossy floor's share of the table's hemispherical albedo (ks Ē_g / Ē_f, channel mean)."""
     kd: np.ndarray
     ks: np.ndarray
     alpha_g: float
     residual: TabulatedBRDF
     mode: str
     share: float = 0.0
+    dist_g: str = "ggx"
 
 
 _FLOOR_CACHE: dict = {}
@@ -726,35 +753,41 @@ def _table_key(brdf) -> tuple:
 
 def glossy_floor_alpha_min(brdf: TabulatedBRDF) -> float:
     """The smallest α of the glossy floor's search: one cell's angular size tan(π Z / (2 res)) (Z the half table's
-    zoom): a GGX lobe narrower than a cell could sit between the nodes, where the constraint r >= 0 does not
-    see it, and add energy the table does not hold."""
+    zoom): a lobe narrower than a cell could sit between the nodes, where the constraint r >= 0 does not see it,
+    and add energy the table does not hold."""
     Z = float(getattr(brdf, "extent", 1.0)) if getattr(brdf, "half", False) else 1.0
     return float(np.tan(0.5 * np.pi * Z / brdf.res))
 
 
-def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, n_grid: int = 10):
-    """The glossy floor of ``brdf``: f = kd/π + ks g_α + r, g Cycles' GGX closure (F = 1, height-correlated
-    Smith G2, single scattering: what the Glossy BSDF node (GGX) and OSL ``microfacet("ggx")`` render; ``_ggx_unit``),
-    with r >= 0 at every table node (``ggx_nodes``: g in the table's layout; bilinear interpolation then keeps
-    r >= 0 everywhere).  For a given α, (kd, ks) per channel maximise the floor's albedo kd + ks Ē_g (Ē the
-    hemispherical average of ``ggx_albedo``) under those constraints (``_best_split``, a 2-variable linear
-    programme); α (``alpha`` if given) maximises that albedo summed over channels: a log grid of ``n_grid`` values
-    in [``glossy_floor_alpha_min``, 1], then a bounded golden-section search between the best value's neighbours.
+def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: str | None = None,
+                       n_grid: int = 8) -> FloorParts:
+    """The glossy floor of ``brdf``: f = kd/π + ks g + r, g a Cycles microfacet closure (``glossy_eval``: GGX or
+    Beckmann of α, F = 1, height-correlated Smith G2, single scattering: what the Glossy BSDF node and OSL
+    ``microfacet`` render), with r >= 0 at every table node (``glossy_nodes``: g in the table's layout; bilinear
+    interpolation then keeps r >= 0 everywhere).  For a given (dist, α), (kd, ks) per channel maximise the
+    floor's albedo kd + ks Ē_g (Ē the hemispherical average of ``glossy_albedo``) under those constraints
+    (``_best_split``, a 2-variable linear programme).  The rule for (dist, α) (``dist`` / ``alpha`` if given):
+    the largest floor albedo summed over channels; per dist a log grid of ``n_grid`` α in
+    [``glossy_floor_alpha_min``, 1], then a golden-section search in log α between the best value's neighbours.
+    Both tails are tried because r >= 0 must hold in the far tails too: a GGX floor (heavy tails) fits under a
+    GGX lobe but not under a Beckmann one (its tails fall below GGX's: ks = 0), a Beckmann floor fits under both.
     What renders: kd/π + ks g (exact, Cycles evaluates it) + the interpolated r, so the floor's parts are not
-    interpolated (a GGX lobe in the table renders as the analytic lobe where the α matches).  Half tables zoomed
-    to a lobe (``extent`` < 1: f = 0 outside the zoom) get no floor.  Returns ``FloorParts`` (mode "glossy")."""
+    interpolated (a lobe that is the floor's renders as the analytic lobe).  Half tables zoomed to a lobe
+    (``extent`` < 1: f = 0 outside the zoom) get no floor.  Returns ``FloorParts`` (mode "glossy")."""
     half = bool(getattr(brdf, "half", False))
     table = np.asarray(brdf.table, np.float64)
     D, n_o = table.shape[:2]
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
     vg = {} if va is None else {"view_a": va, "view_b": vb}
+    if dist is not None and dist not in FLOOR_DISTS:
+        raise ValueError(f"dist: expected one of {FLOOR_DISTS}, got {dist!r}")
 
     def residual(t):
         return TabulatedBRDF(np.maximum(t, 0.0), brdf.res, bool(brdf.iso), dict(getattr(brdf, "info", {}) or {}),
                              half, float(getattr(brdf, "extent", 1.0)) if half else 1.0, **vg)
     if half and brdf.extent < 1.0:
         return FloorParts(np.zeros(3), np.zeros(3), 0.0, residual(table), "glossy", 0.0)
-    key = ("glossy", alpha, n_grid) + _table_key(brdf)
+    key = ("glossy", alpha, dist, n_grid) + _table_key(brdf)
     if key in _FLOOR_CACHE:
         return _FLOOR_CACHE[key]
     lam = lambert_nodes(brdf).ravel()
@@ -762,32 +795,35 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, n_grid: 
     mu = np.cos(_AVG_THETA)
     memo = {}
 
-    def solve(a):
-        a = float(a)
-        if a not in memo:
-            g = ggx_nodes(brdf, a).ravel()
-            Eg = _hemi_average(ggx_albedo(mu, a, 128))
+    def solve(a, dg):
+        k = (float(a), dg)
+        if k not in memo:
+            g = glossy_nodes(brdf, float(a), dg).ravel()
+            Eg = _hemi_average(glossy_albedo(mu, float(a), dg, 128))
             kd, ks = _best_split(t, lam, g, Eg)
-            memo[a] = (float(np.sum(kd + ks * Eg)), kd, ks, g, Eg)
-        return memo[a]
-    if alpha is not None:
-        a_best = float(validation.check_range("alpha_g", alpha, 1e-3, 1.0))
-    else:
+            memo[k] = (float(np.sum(kd + ks * Eg)), kd, ks, g, Eg)
+        return memo[k]
+    for dg in (FLOOR_DISTS if dist is None else (dist,)):
+        if alpha is not None:
+            solve(validation.check_range("alpha_g", alpha, 1e-3, 1.0), dg)
+            continue
         grid = np.geomspace(glossy_floor_alpha_min(brdf), 1.0, n_grid)
-        vals = [solve(a)[0] for a in grid]
+        vals = [solve(a, dg)[0] for a in grid]
         i = int(np.argmax(vals))
+        if vals[i] <= 0:
+            continue
         lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n_grid - 1)])
         gr = 0.5 * (np.sqrt(5.0) - 1.0)
         x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-        for _ in range(10):                               # golden section in log α (unimodal near the best)
-            if solve(np.exp(x1))[0] >= solve(np.exp(x2))[0]:
+        for _ in range(8):                                 # golden section in log α (unimodal near the best)
+            if solve(np.exp(x1), dg)[0] >= solve(np.exp(x2), dg)[0]:
                 hi, x2 = x2, x1
                 x1 = hi - gr * (hi - lo)
             else:
                 lo, x1 = x1, x2
                 x2 = lo + gr * (hi - lo)
-        a_best = max(memo, key=lambda a: memo[a][0])
-    _, kd, ks, g, Eg = solve(a_best)
+    a_best, d_best = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))    # ties: GGX
+    _, kd, ks, g, Eg = memo[(a_best, d_best)]
     if kd.max() <= 1e-6:
         kd = np.zeros(3)
     if ks.max() <= 1e-6:
@@ -795,7 +831,8 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, n_grid: 
     r = t - kd[None, :] * lam[:, None] - ks[None, :] * g[:, None]       # >= 0 up to rounding
     E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
     share = float(np.mean(ks) * Eg / E_f) if E_f > 0 else 0.0
-    out = FloorParts(kd, ks, float(a_best) if ks.any() else 0.0, residual(r.reshape(D, n_o, 3)), "glossy", share)
+    out = FloorParts(kd, ks, float(a_best) if ks.any() else 0.0, residual(r.reshape(D, n_o, 3)), "glossy", share,
+                     d_best if ks.any() else "ggx")
     if len(_FLOOR_CACHE) > 16:
         _FLOOR_CACHE.clear()
     _FLOOR_CACHE[key] = out
@@ -803,12 +840,12 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, n_grid: 
 
 
 def floor_albedo(tb: ClosureTables, wo) -> np.ndarray:
-    """Directional albedo (N, 3) of the floors of ``tb`` at views wo (N, 3) (z > 0): kd + ks ``ggx_albedo``.
+    """Directional albedo (N, 3) of the floors of ``tb`` at views wo (N, 3) (z > 0): kd + ks ``glossy_albedo``.
     A white furnace renders this plus the table closure's mean W A."""
     wo = _unit_rows("wo", wo)
     out = np.broadcast_to(tb.kd, (len(wo), 3)).copy()
     if np.any(tb.ks):
-        out += tb.ks[None, :] * ggx_albedo(wo[:, 2], tb.alpha_g)[:, None]
+        out += tb.ks[None, :] * glossy_albedo(wo[:, 2], tb.alpha_g, tb.dist_g)[:, None]
     return out
 
 
@@ -834,19 +871,19 @@ def floor_eval(parts: FloorParts, wi, wo) -> np.ndarray:
     ok = ((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None]
     out = out + np.where(ok, parts.kd / np.pi, 0.0)
     if parts.ks.any():
-        out = out + np.where(ok, parts.ks * _ggx_unit(wi, wo, parts.alpha_g)[:, None], 0.0)
+        out = out + np.where(ok, parts.ks * glossy_eval(wi, wo, parts.alpha_g, parts.dist_g)[:, None], 0.0)
     return out
 
 
 def closure_albedo(brdf: TabulatedBRDF, wo, floor=True, n_theta: int = 64, n_phi: int = 128) -> np.ndarray:
     """Directional albedo (N, 3) of what the shader renders for views wo (N, 3): kd (the Diffuse floor, whose
-    cosine-weighted integral is kd) plus ks x the glossy floor's ``ggx_albedo`` plus the residual's ``albedo``
+    cosine-weighted integral is kd) plus ks x the glossy floor's ``glossy_albedo`` plus the residual's ``albedo``
     (``floor_parts``)."""
     parts = floor_parts(brdf, floor)
     wo = _unit_rows("wo", wo)
     out = parts.kd[None, :] + parts.residual.albedo(wo, n_theta, n_phi)
     if parts.ks.any():
-        out = out + parts.ks[None, :] * ggx_albedo(wo[:, 2], parts.alpha_g)[:, None]
+        out = out + parts.ks[None, :] * glossy_albedo(wo[:, 2], parts.alpha_g, parts.dist_g)[:, None]
     return out
 
 
@@ -884,7 +921,8 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor=True) 
     cdf[:, -1] = 1.0
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
     return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha),
-                         half, extent, view_a=va, view_b=vb, kd=kd, ks=parts.ks, alpha_g=parts.alpha_g)
+                         half, extent, view_a=va, view_b=vb, kd=kd, ks=parts.ks, alpha_g=parts.alpha_g,
+                         dist_g=parts.dist_g)
 
 
 def guide_pick(cdf, guide, o, u) -> np.ndarray:

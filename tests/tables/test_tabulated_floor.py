@@ -127,16 +127,21 @@ def test_merl_files_floor_share():
 
 
 # ----------------------------------------------------------------------------- the glossy floor
-def test_ggx_albedo_is_cycles_closure_albedo():
-    """``ggx_albedo`` (the glossy floor's directional albedo, half-vector quadrature) equals the albedo of Cycles'
-    GGX closure integrated in slope space by ``precompute.cycles.ggx.albedo`` (n = 2048, converged) within 0.1 %
+def test_glossy_floor_lobe_is_cycles_closure():
+    """``glossy_eval`` is Cycles' GGX / Beckmann closure (``precompute.cycles.ggx.bsdf_eval``, the twin of
+    ``bsdf_microfacet_eval``: eval = g cos θi) and ``glossy_albedo`` (the glossy floor's directional albedo,
+    half-vector quadrature) equals the albedo of that closure integrated in slope space by ``precompute.cycles.ggx.albedo`` (n = 2048, converged) within 0.1 %
     (the midpoint rule's error at the horizon cut: 0.4 % at n = 256, 75°)."""
     from scratch_materials.precompute.cycles import ggx
 
     th = np.radians([0.0, 45.0, 75.0])
-    for a in (0.06, 0.2, 0.6):
-        ref = np.array([float(ggx.albedo(0.0, a, a, t, n=2048)) for t in th])
-        np.testing.assert_allclose(tb.ggx_albedo(np.cos(th), a), ref, rtol=1e-3)
+    for dist in tb.FLOOR_DISTS:
+        for a in (0.06, 0.2, 0.6):
+            ref = np.array([float(ggx.albedo(0.0, a, a, t, n=2048, dist=dist)) for t in th])
+            np.testing.assert_allclose(tb.glossy_albedo(np.cos(th), a, dist), ref, rtol=1e-3)
+        wi, wo = _dirs(500, 1), _dirs(500, 2)           # eval: Cycles' eval = f cos θi (light = ωi)
+        ev, _ = ggx.bsdf_eval([0, 0, 1.0], [1.0, 0, 0], 0.3, 0.3, wo, wi, dist=dist)
+        np.testing.assert_allclose(tb.glossy_eval(wi, wo, 0.3, dist) * wi[:, 2], ev, rtol=1e-9, atol=1e-14)
 
 
 @pytest.mark.parametrize("kind", ["aniso", "iso", "half", "view"])
@@ -155,7 +160,7 @@ def test_glossy_floor_is_cycles_ggx_under_the_table(tables, kind):
     np.testing.assert_allclose(P.ks, 0.8, rtol=0.05 if B.half else 0.01)
     np.testing.assert_allclose(P.kd, [0.1, 0.2, 0.3], atol=0.01)
     assert np.all(P.residual.table >= 0) and P.share > 0.5
-    g = tb.ggx_nodes(B, P.alpha_g)
+    g = tb.glossy_nodes(B, P.alpha_g)
     lam = tb.lambert_nodes(B)
     over = B.table - P.kd * lam[..., None] - 1.001 * P.ks * g[..., None]
     assert np.all(over.reshape(-1, 3).min(0) < 0)
@@ -171,6 +176,26 @@ def test_glossy_floor_is_cycles_ggx_under_the_table(tables, kind):
     assert np.median(np.abs(got - f) / f) < 0.03
 
 
+def test_beckmann_lobe_gets_a_beckmann_floor():
+    """A Beckmann (α 0.3, x 0.8, Cycles' closure) + Lambert table: a GGX floor cannot sit under it (GGX's tails
+    exceed Beckmann's far from the peak, where r >= 0 then pins ks < 0.3, paid for by the Diffuse kd), the search
+    picks the Beckmann floor
+    and recovers α (2 %), ks (1 %) and kd (0.01)."""
+    from scratch_materials.precompute.cycles import ggx
+
+    def f(wi, wo):
+        ev, _ = ggx.bsdf_eval([0, 0, 1.0], [1.0, 0, 0], 0.3, 0.3, wo, wi, dist="beckmann")
+        return 0.8 * (ev / np.maximum(wi[:, 2], 1e-9))[:, None] * np.ones(3) + np.array([0.1, 0.2, 0.3]) / np.pi
+    B = tb.TabulatedBRDF.from_function(f, 10, iso=True, n_theta=8)
+    G = tb.glossy_floor_split(B, dist="ggx")
+    assert G.ks.max() < 0.3 and G.kd[0] < 0.05, (G.kd, G.ks)       # measured ks 0.13-0.22, kd 0-0.12
+    P = tb.glossy_floor_split(B)
+    assert P.dist_g == "beckmann" and abs(P.alpha_g / 0.3 - 1) < 0.02, (P.dist_g, P.alpha_g)
+    np.testing.assert_allclose(P.ks, 0.8, rtol=0.01)
+    np.testing.assert_allclose(P.kd, [0.1, 0.2, 0.3], atol=0.01)
+    assert np.all(P.residual.table >= 0)
+
+
 @pytest.mark.parametrize("kind", ["iso", "half", "view"])
 def test_furnace_of_glossy_floor_and_broken_glossy_floors_fail(tables, kind):
     """White furnace of the glossy floor's closures (kd + ks E_g, ``floor_albedo``) + the residual's table closure
@@ -183,7 +208,7 @@ def test_furnace_of_glossy_floor_and_broken_glossy_floors_fail(tables, kind):
     P = tb.floor_parts(B)
     twice = tb.closure_tables(B)
     twice.ks = 2 * T.ks
-    g = tb.ggx_nodes(B, P.alpha_g)
+    g = tb.glossy_nodes(B, P.alpha_g)
     lam = tb.lambert_nodes(B)
     clip_r = np.maximum(B.table - P.kd * lam[..., None] - 1.3 * P.ks * g[..., None], 0.0)
     clipped = tb.closure_tables(tb.TabulatedBRDF(clip_r, B.res, B.iso, B.info, B.half, B.extent, B.view_a, B.view_b),
