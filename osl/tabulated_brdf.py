@@ -33,6 +33,9 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, flo
     if tb.ks.any():                 # the glossy floor (tabulated_brdf.glossy_floor_split)
         view.update(GFLOOR=True, KS_R=float(tb.ks[0]), KS_G=float(tb.ks[1]), KS_B=float(tb.ks[2]),
                     ALPHA_G=float(tb.alpha_g), GDIST=f'"{tb.dist_g}"')
+        if tb.ks_view is not None:  # isotropic tables: the colour per θo node (tabulated_brdf.floor_ks)
+            view.update(GFLOOR_VIEW=True)
+            tables += const_array("KSV", tb.ks_view.ravel())
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
                            ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent), **view),

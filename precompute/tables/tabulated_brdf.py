@@ -93,7 +93,7 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
            "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS",
            "lambert_nodes", "floor_split", "closure_albedo",
            "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
-           "glossy_eval", "FLOOR_DISTS",
+           "glossy_eval", "FLOOR_DISTS", "floor_ks",
            "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo"]
 
 #: Largest ωi grid side.
@@ -491,7 +491,8 @@ class ClosureTables:
     ``guide`` (n_o, res²) int32: the guide table of each CDF (``guide_table``); ``kd`` (3,) the smooth
     floor's albedo (``floor_split``): the shader adds a Diffuse closure of weight kd, and ``F`` / ``cdf`` are
     those of the residual r = f - kd/π (- ks g); ``ks`` (3,), ``alpha_g``, ``dist_g``: the glossy floor
-    (``glossy_floor_split``: a ``dist_g`` ("ggx" / "beckmann") closure of α ``alpha_g`` and colour ks, none when ks = 0)."""
+    (``glossy_floor_split``: a ``dist_g`` ("ggx" / "beckmann") closure of α ``alpha_g`` and colour ks, none when ks = 0;
+    ``ks_view`` (n_o, 3) or None: the colour per θo node of an isotropic table, ``floor_ks``)."""
     F: np.ndarray
     cdf: np.ndarray
     res: int
@@ -506,6 +507,7 @@ class ClosureTables:
     ks: np.ndarray = field(default_factory=lambda: np.zeros(3))
     alpha_g: float = 0.0
     dist_g: str = "ggx"
+    ks_view: np.ndarray | None = None
 
     def __post_init__(self):
         if self.guide is None:
@@ -694,31 +696,36 @@ def glossy_nodes(brdf: TabulatedBRDF, alpha: float, dist: str = "ggx") -> np.nda
 
 
 def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
-    """Per channel, the (kd, ks) >= 0 maximising the floor's albedo kd + ks Eg subject to kd lam + ks g <= t at
-    every node (t (N, 3), lam, g (N,)).  ks(kd) = min over nodes of (t - kd lam) / g is concave in kd, so the
-    objective is too: a grid of K values of kd in [0, kd_max], refined ``levels`` times around the best.
-    Every returned pair satisfies the constraints exactly (ks is computed for the returned kd)."""
-    pos_l, pos_g = lam > 0, g > 1e-12 * max(float(g.max()), 1e-300)
-    kd_out, ks_out = np.zeros(3), np.zeros(3)
+    """Per channel, kd >= 0 and ks_o >= 0 per view node o (rows of the table: t (D, n_o, 3), lam, g (D, n_o))
+    maximising the floor's albedo kd + Σ_o Eg_o ks_o subject to kd lam + ks_o g <= t at every node (``Eg`` (n_o,):
+    the view weights times the lobe's albedo at each node; one column (n_o = 1) for a ks shared by all views).
+    ks_o(kd) = min over row o of (t - kd lam) / g is concave in kd, so the objective is too: a grid of K values of
+    kd in [0, kd_max], refined ``levels`` times around the best.  Every returned pair satisfies the constraints
+    exactly (ks is computed for the returned kd).  Returns kd (3,), ks (n_o, 3)."""
+    pos_l = lam > 0
+    pos_g = g > 1e-12 * max(float(g.max()), 1e-300)
+    gs = np.where(pos_g, g, 1.0)
+    Eg = np.asarray(Eg, np.float64)
+    kd_out, ks_out = np.zeros(3), np.zeros((g.shape[1], 3))
     for c in range(3):
-        tc = t[:, c]
+        tc = t[..., c]
         kd_max = max(float((tc[pos_l] / lam[pos_l]).min()), 0.0) if pos_l.any() else 0.0
-        tg, lg, gg = tc[pos_g], lam[pos_g], g[pos_g]
 
-        def ks_of(kd):
-            return np.maximum(((tg[None, :] - kd[:, None] * lg[None, :]) / gg[None, :]).min(1), 0.0)
+        def ks_of(kd):                                   # (K, n_o)
+            q = (tc[None] - kd[:, None, None] * lam[None]) / gs[None]
+            return np.maximum(np.where(pos_g[None], q, np.inf).min(1), 0.0)
         lo, hi = 0.0, kd_max
-        best = (0.0, float(ks_of(np.zeros(1))[0]) if pos_g.any() else 0.0)
+        best_v, best = -1.0, (0.0, np.zeros(g.shape[1]))
         for _ in range(levels):
             kds = np.linspace(lo, hi, K)
-            kss = ks_of(kds) if pos_g.any() else np.zeros(K)
-            v = kds + Eg * kss
+            kss = np.where(np.isfinite(ks := ks_of(kds)), ks, 0.0)
+            v = kds + kss @ Eg
             i = int(np.argmax(v))
-            if v[i] >= best[0] + Eg * best[1]:
-                best = (float(kds[i]), float(kss[i]))
+            if v[i] >= best_v:
+                best_v, best = float(v[i]), (float(kds[i]), kss[i])
             step = (hi - lo) / (K - 1)
             lo, hi = max(kds[i] - step, 0.0), min(kds[i] + step, kd_max)
-        kd_out[c], ks_out[c] = best
+        kd_out[c], ks_out[:, c] = best
     return kd_out, ks_out
 
 
@@ -726,8 +733,9 @@ def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
 class FloorParts:
     """The floors of a table (``floor_parts``): f = kd/π + ks g + r at every node.  ``kd`` (3,) Diffuse albedo;
     the glossy floor g: Cycles' ``dist_g`` closure ("ggx" or "beckmann", ``glossy_eval``) of α ``alpha_g``, F = 1,
-    colour ``ks`` (3,) (ks = 0: none); ``residual`` r (a ``TabulatedBRDF``, >= 0); ``mode`` the mode used;
-    ``share`` the glossy floor's share of the table's hemispherical albedo (ks Ē_g / Ē_f, channel mean)."""
+    colour ``ks`` (3,) (ks = 0: none; with ``ks_view`` (n_o, 3), isotropic tables: the colour per θo node,
+    interpolated linearly in θo, ``ks`` its maximum); ``residual`` r (a ``TabulatedBRDF``, >= 0); ``mode`` the mode
+    used; ``share`` the glossy floor's share of the table's hemispherical albedo (ks Ē_g / Ē_f, channel mean)."""
     kd: np.ndarray
     ks: np.ndarray
     alpha_g: float
@@ -735,6 +743,15 @@ class FloorParts:
     mode: str
     share: float = 0.0
     dist_g: str = "ggx"
+    ks_view: np.ndarray | None = None
+
+    @property
+    def iso(self) -> bool:
+        return bool(self.residual.iso)
+
+    @property
+    def n_o(self) -> int:
+        return self.residual.n_o
 
 
 _FLOOR_CACHE: dict = {}
@@ -760,7 +777,7 @@ def glossy_floor_alpha_min(brdf: TabulatedBRDF) -> float:
 
 
 def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: str | None = None,
-                       n_grid: int = 8) -> FloorParts:
+                       n_grid: int = 8, per_view: bool = True) -> FloorParts:
     """The glossy floor of ``brdf``: f = kd/π + ks g + r, g a Cycles microfacet closure (``glossy_eval``: GGX or
     Beckmann of α, F = 1, height-correlated Smith G2, single scattering: what the Glossy BSDF node and OSL
     ``microfacet`` render), with r >= 0 at every table node (``glossy_nodes``: g in the table's layout; bilinear
@@ -773,7 +790,10 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     GGX lobe but not under a Beckmann one (its tails fall below GGX's: ks = 0), a Beckmann floor fits under both.
     What renders: kd/π + ks g (exact, Cycles evaluates it) + the interpolated r, so the floor's parts are not
     interpolated (a lobe that is the floor's renders as the analytic lobe).  Half tables zoomed to a lobe
-    (``extent`` < 1: f = 0 outside the zoom) get no floor.  Returns ``FloorParts`` (mode "glossy")."""
+    (``extent`` < 1: f = 0 outside the zoom) get no floor.  ``per_view`` (isotropic tables): ks is chosen per θo
+    node (ks_o, the largest for each row; rendered linearly interpolated in θo like the table, ``floor_ks``), so
+    that one bad row (a MERL file's grazing bins, which bind a shared ks to 0.43 of the lobe's 0.8) does not cap
+    every view.  Returns ``FloorParts`` (mode "glossy")."""
     half = bool(getattr(brdf, "half", False))
     table = np.asarray(brdf.table, np.float64)
     D, n_o = table.shape[:2]
@@ -787,21 +807,30 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                              half, float(getattr(brdf, "extent", 1.0)) if half else 1.0, **vg)
     if half and brdf.extent < 1.0:
         return FloorParts(np.zeros(3), np.zeros(3), 0.0, residual(table), "glossy", 0.0)
-    key = ("glossy", alpha, dist, n_grid) + _table_key(brdf)
+    key = ("glossy", alpha, dist, n_grid, per_view) + _table_key(brdf)
     if key in _FLOOR_CACHE:
         return _FLOOR_CACHE[key]
-    lam = lambert_nodes(brdf).ravel()
-    t = table.reshape(-1, 3)
+    lam = lambert_nodes(brdf)
+    t = table
     mu = np.cos(_AVG_THETA)
+    per_view = bool(per_view) and bool(brdf.iso)
+    th_o = theta_nodes(n_o)
+    w_o = np.cos(th_o) * np.sin(th_o)
+    w_o /= w_o.sum()
     memo = {}
 
     def solve(a, dg):
         k = (float(a), dg)
         if k not in memo:
-            g = glossy_nodes(brdf, float(a), dg).ravel()
-            Eg = _hemi_average(glossy_albedo(mu, float(a), dg, 128))
-            kd, ks = _best_split(t, lam, g, Eg)
-            memo[k] = (float(np.sum(kd + ks * Eg)), kd, ks, g, Eg)
+            g = glossy_nodes(brdf, float(a), dg)
+            if per_view:                                  # ks per θo node: weights cos θ sin θ of the nodes
+                Eg = glossy_albedo(np.cos(th_o), float(a), dg, 128) * w_o
+                kd, ks = _best_split(t, lam, g, Eg)
+            else:
+                Eg = np.array([_hemi_average(glossy_albedo(mu, float(a), dg, 128))])
+                kd, ks = _best_split(t.reshape(-1, 1, 3), lam.reshape(-1, 1), g.reshape(-1, 1), Eg)
+                ks = np.repeat(ks, n_o, 0)
+            memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, g, Eg)
         return memo[k]
     for dg in (FLOOR_DISTS if dist is None else (dist,)):
         if alpha is not None:
@@ -823,29 +852,43 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                 lo, x1 = x1, x2
                 x2 = lo + gr * (hi - lo)
     a_best, d_best = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))    # ties: GGX
-    _, kd, ks, g, Eg = memo[(a_best, d_best)]
+    total, kd, ks, g, Eg = memo[(a_best, d_best)]
     if kd.max() <= 1e-6:
         kd = np.zeros(3)
     if ks.max() <= 1e-6:
-        ks = np.zeros(3)
-    r = t - kd[None, :] * lam[:, None] - ks[None, :] * g[:, None]       # >= 0 up to rounding
+        ks = np.zeros_like(ks)
+    r = t - kd * lam[..., None] - ks[None, :, :] * g[..., None]       # >= 0 up to rounding
     E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
-    share = float(np.mean(ks) * Eg / E_f) if E_f > 0 else 0.0
-    out = FloorParts(kd, ks, float(a_best) if ks.any() else 0.0, residual(r.reshape(D, n_o, 3)), "glossy", share,
-                     d_best if ks.any() else "ggx")
+    share = float((total - np.sum(kd)) / 3.0 / E_f) if E_f > 0 and ks.any() else 0.0
+    ks_view = ks if per_view and ks.any() else None
+    out = FloorParts(kd, ks.max(0), float(a_best) if ks.any() else 0.0, residual(r), "glossy", share,
+                     d_best if ks.any() else "ggx", ks_view)
     if len(_FLOOR_CACHE) > 16:
         _FLOOR_CACHE.clear()
     _FLOOR_CACHE[key] = out
     return out
 
 
+def floor_ks(parts, wo) -> np.ndarray:
+    """The glossy floor's colour (N, 3) at views wo (N, 3) of ``parts`` (``FloorParts`` or ``ClosureTables``): ks,
+    or with ``ks_view`` its linear interpolation in θo between the isotropic table's nodes (clamped: the taps of
+    ``TabulatedBRDF.eval``)."""
+    wo = np.atleast_2d(np.asarray(wo, np.float64))
+    kv = getattr(parts, "ks_view", None)
+    if kv is None:
+        return np.broadcast_to(np.asarray(parts.ks, np.float64), (len(wo), 3)).copy()
+    n_o = len(kv)
+    i0, i1, f = _lin_taps(np.arccos(np.clip(wo[:, 2], -1, 1)) / (0.5 * np.pi / n_o) - 0.5, n_o)
+    return (1.0 - f)[:, None] * kv[i0] + f[:, None] * kv[i1]
+
+
 def floor_albedo(tb: ClosureTables, wo) -> np.ndarray:
-    """Directional albedo (N, 3) of the floors of ``tb`` at views wo (N, 3) (z > 0): kd + ks ``glossy_albedo``.
-    A white furnace renders this plus the table closure's mean W A."""
+    """Directional albedo (N, 3) of the floors of ``tb`` at views wo (N, 3) (z > 0): kd + ks ``glossy_albedo``
+    (ks at the view, ``floor_ks``).  A white furnace renders this plus the table closure's mean W A."""
     wo = _unit_rows("wo", wo)
     out = np.broadcast_to(tb.kd, (len(wo), 3)).copy()
     if np.any(tb.ks):
-        out += tb.ks[None, :] * glossy_albedo(wo[:, 2], tb.alpha_g, tb.dist_g)[:, None]
+        out += floor_ks(tb, wo) * glossy_albedo(wo[:, 2], tb.alpha_g, tb.dist_g)[:, None]
     return out
 
 
@@ -871,7 +914,7 @@ def floor_eval(parts: FloorParts, wi, wo) -> np.ndarray:
     ok = ((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None]
     out = out + np.where(ok, parts.kd / np.pi, 0.0)
     if parts.ks.any():
-        out = out + np.where(ok, parts.ks * glossy_eval(wi, wo, parts.alpha_g, parts.dist_g)[:, None], 0.0)
+        out = out + np.where(ok, floor_ks(parts, wo) * glossy_eval(wi, wo, parts.alpha_g, parts.dist_g)[:, None], 0.0)
     return out
 
 
@@ -883,7 +926,7 @@ def closure_albedo(brdf: TabulatedBRDF, wo, floor=True, n_theta: int = 64, n_phi
     wo = _unit_rows("wo", wo)
     out = parts.kd[None, :] + parts.residual.albedo(wo, n_theta, n_phi)
     if parts.ks.any():
-        out = out + parts.ks[None, :] * glossy_albedo(wo[:, 2], parts.alpha_g, parts.dist_g)[:, None]
+        out = out + floor_ks(parts, wo) * glossy_albedo(wo[:, 2], parts.alpha_g, parts.dist_g)[:, None]
     return out
 
 
@@ -922,7 +965,7 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor=True) 
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
     return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha),
                          half, extent, view_a=va, view_b=vb, kd=kd, ks=parts.ks, alpha_g=parts.alpha_g,
-                         dist_g=parts.dist_g)
+                         dist_g=parts.dist_g, ks_view=parts.ks_view)
 
 
 def guide_pick(cdf, guide, o, u) -> np.ndarray:
@@ -1184,7 +1227,9 @@ def svm_images(tb: ClosureTables) -> dict:
       interpolation of ``sample`` inside node o's tile and never reads a neighbour tile;
     - ``"V"`` (view grids only; 2, ``SVM_VIEW_GUIDE``): row 0 R = the guide x(a) of ``view_a``, row 1 G = that of
       ``view_b`` (``svm_view_guide``; read Linear at heights 1/4 and 3/4, the rows' centres, the sum of the two
-      colours is (xa, xb, 0)); other channels 0."""
+      colours is (xa, xb, 0)); other channels 0;
+    - ``"K"`` (glossy floor per view, ``ks_view``; 1, n_o): RGB the glossy floor's colour at θo node o (read Linear
+      at ((x + 1/2) / n_o, 1/2), x the continuous θo index: ``floor_ks``)."""
     res, n_o, D = tb.res, tb.n_o, tb.res * tb.res
     cdf = tb.cdf.astype(np.float64)
     P = np.diff(cdf, axis=1)
@@ -1203,6 +1248,10 @@ def svm_images(tb: ClosureTables) -> dict:
         v = np.zeros((2, SVM_VIEW_GUIDE, 4), np.float32)
         v[0, :, 0], v[1, :, 1] = svm_view_guide(tb.view_a)[0], svm_view_guide(tb.view_b)[0]
         out["V"] = v
+    if getattr(tb, "ks_view", None) is not None:
+        k = np.zeros((1, len(tb.ks_view), 4), np.float32)
+        k[0, :, :3] = tb.ks_view
+        out["K"] = k
     return out
 
 
