@@ -22,11 +22,13 @@ from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, 
 
 
 def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None,
-                       floor: bool = True):
+                       floor=True):
     """Material of the MERL BRDF in ``path`` (``res`` x ``res`` ωi cells and ``n_theta`` view angles on
     the closure's isotropic grid; missing bins take their measured neighbour's value, ``merl.fill_missing``).
-    ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure, only the rest through the table
-    closure (``tabulated_brdf.floor_split``: a point lamp then lights the diffuse part at every sample).
+    ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure and (True = "auto", or "glossy") a GGX /
+    Beckmann lobe under its glossy part as a Glossy closure, only the rest through the table closure
+    (``tabulated_brdf.floor_parts``: a point lamp then lights both at every sample); "diffuse": the Diffuse floor
+    alone; False / "none": no floor.
     ValueError for unreadable / non-MERL files and out-of-range sizes; nothing is created then."""
     validation.check_range("res", res, 4, 48)
     validation.check_range("n_theta", n_theta, 4, 90)

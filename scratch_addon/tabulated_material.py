@@ -76,7 +76,8 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     the BRDF's smooth part kd/π as a Diffuse closure, and (glossy floor) a GGX lobe ks g_α under the table as a
     Glossy closure, only the residual through the table closure (``tabulated_brdf.floor_parts``: True = "auto",
     the glossy floor when it takes >= ``GLOSSY_SHARE_MIN`` of the albedo; "glossy", "diffuse", "none" / False;
-    custom properties ``tabulated_floor``: kd, ``tabulated_glossy_floor``: (ks R, G, B, α_g), zeros when none).
+    custom properties ``tabulated_floor``: kd, ``tabulated_glossy_floor``: (ks R, G, B, α_g), zeros when none (ks: the
+    largest over the views when it varies with θo), ``tabulated_glossy_floor_dist``: "ggx" / "beckmann" / "").
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
@@ -109,6 +110,7 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     mat["tabulated_iso"] = bool(brdf.iso)
     mat["tabulated_floor"] = [float(c) for c in tables.kd]
     mat["tabulated_glossy_floor"] = [*(float(c) for c in tables.ks), float(tables.alpha_g)]
+    mat["tabulated_glossy_floor_dist"] = tables.dist_g if tables.ks.any() else ""
     if getattr(brdf, "half", False):
         mat["tabulated_half_extent"] = float(brdf.extent)      # a half-vector table zoomed to its lobe
     if twin is not None:
