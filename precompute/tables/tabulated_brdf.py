@@ -681,18 +681,34 @@ def _hemi_average(E) -> float:
     return float(np.sum(np.asarray(E) * _AVG_W))
 
 
-def glossy_nodes(brdf: TabulatedBRDF, alpha: float, dist: str = "ggx") -> np.ndarray:
-    """The glossy floor's lobe (``glossy_eval``, α ``alpha``, ``dist``) in ``brdf``'s layout (res², n_o): its values
-    at the table's nodes, cell-averaged over ``info["sub"]``² points as ``from_function`` built the table (half
-    tables: ρ = g cos θi cos θo J, as ``lambert_nodes``).  The g subtracted where the residual is stored."""
+def _node_pairs(brdf: TabulatedBRDF):
+    """The (ωi, ωo) pairs ``from_function`` evaluates to build ``brdf``'s nodes, for evaluating other BRDFs in its
+    layout at once: (wi (n_o, P, 3), wo (n_o, 1, 3), weight (n_o, P) (half tables: ok cos θi cos θo J, else 1),
+    sub²) with P = res² sub² cell-major points; a node is the sum over its cell's sub² points x weight / count
+    (half tables: the count of points above the horizon, as ``from_function``)."""
     info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
     half = bool(getattr(brdf, "half", False))
     sub = int(info.get("sub", 4 if half else 1))
-    va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
-    g = TabulatedBRDF.from_function(lambda wi, wo: glossy_eval(wi, wo, alpha, dist), brdf.res, bool(brdf.iso),
-                                    n_theta=brdf.n_o if brdf.iso else 32, sub=sub, half=half,
-                                    extent=float(getattr(brdf, "extent", 1.0)) if half else 1.0, view_a=va, view_b=vb)
-    return g.table[..., 0]
+    st, _ = cell_points(brdf.res, sub, float(getattr(brdf, "extent", 1.0)) if half else 1.0)
+    x = hemi_oct_decode(st)
+    wo = brdf.view_nodes()[:, None, :]
+    if not half:
+        return np.broadcast_to(x, (len(wo), *x.shape)), wo, np.ones((len(wo), len(x))) / (sub * sub), sub
+    wi, ok = reflect(np.broadcast_to(wo, (len(wo), len(x), 3)), np.broadcast_to(x, (len(wo), len(x), 3)))
+    w = np.where(ok, wi[..., 2] * wo[..., 2] * jacobian(st)[None, :], 0.0)
+    n_ok = ok.reshape(len(wo), brdf.res ** 2, sub * sub).sum(-1)
+    w = w / np.repeat(np.maximum(n_ok, 1), sub * sub, axis=1)
+    return np.where(ok[..., None], wi, [0.0, 0.0, 1.0]), wo, w, sub
+
+
+def glossy_nodes(brdf: TabulatedBRDF, alpha: float, dist: str = "ggx", pairs=None) -> np.ndarray:
+    """The glossy floor's lobe (``glossy_eval``, α ``alpha``, ``dist``) in ``brdf``'s layout (res², n_o): its values
+    at the table's nodes, cell-averaged over ``info["sub"]``² points as ``from_function`` built the table (half
+    tables: ρ = g cos θi cos θo J, as ``lambert_nodes``), vectorised over all pairs (``_node_pairs``, reusable
+    via ``pairs``).  The g subtracted where the residual is stored."""
+    wi, wo, w, sub = _node_pairs(brdf) if pairs is None else pairs
+    v = glossy_eval(wi, wo, float(alpha), dist) * w                         # (n_o, P)
+    return np.maximum(v.reshape(v.shape[0], -1, sub * sub).sum(-1).T, 0.0)
 
 
 def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
@@ -700,20 +716,30 @@ def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
     maximising the floor's albedo kd + Σ_o Eg_o ks_o subject to kd lam + ks_o g <= t at every node (``Eg`` (n_o,):
     the view weights times the lobe's albedo at each node; one column (n_o = 1) for a ks shared by all views).
     ks_o(kd) = min over row o of (t - kd lam) / g is concave in kd, so the objective is too: a grid of K values of
-    kd in [0, kd_max], refined ``levels`` times around the best.  Every returned pair satisfies the constraints
-    exactly (ks is computed for the returned kd).  Returns kd (3,), ks (n_o, 3)."""
+    kd in [0, kd_max], refined ``levels`` times around the best.  The search runs on the ``keep`` nodes of each row
+    with the smallest ratios at kd = 0, kd_max / 2 and kd_max (the lines that bound the envelope, up to lines
+    crossing the whole set), and ks is then computed over every node for the kd found, so every returned pair
+    satisfies the constraints exactly.  Returns kd (3,), ks (n_o, 3)."""
     pos_l = lam > 0
     pos_g = g > 1e-12 * max(float(g.max()), 1e-300)
     gs = np.where(pos_g, g, 1.0)
     Eg = np.asarray(Eg, np.float64)
     kd_out, ks_out = np.zeros(3), np.zeros((g.shape[1], 3))
+    keep = 48
     for c in range(3):
         tc = t[..., c]
         kd_max = max(float((tc[pos_l] / lam[pos_l]).min()), 0.0) if pos_l.any() else 0.0
 
-        def ks_of(kd):                                   # (K, n_o)
-            q = (tc[None] - kd[:, None, None] * lam[None]) / gs[None]
-            return np.maximum(np.where(pos_g[None], q, np.inf).min(1), 0.0)
+        def ratios(kd, tt, ll, gg, pp):                  # (K, D', n_o)
+            return np.where(pp[None], (tt[None] - kd[:, None, None] * ll[None]) / gg[None], np.inf)
+        sel = (tc, lam, gs, pos_g)
+        if tc.shape[0] > keep:                           # prune each row to its few binding candidates
+            q = ratios(np.array([0.0, 0.5 * kd_max, kd_max]), *sel)
+            idx = np.concatenate([np.argpartition(qk, keep, axis=0)[:keep] for qk in q], 0)     # (3 keep, n_o)
+            sel = tuple(np.take_along_axis(a, idx, 0) for a in sel)
+
+        def ks_of(kd, sel=sel):                          # (K, n_o)
+            return np.maximum(ratios(kd, *sel).min(1), 0.0)
         lo, hi = 0.0, kd_max
         best_v, best = -1.0, (0.0, np.zeros(g.shape[1]))
         for _ in range(levels):
@@ -725,7 +751,9 @@ def _best_split(t, lam, g, Eg, levels: int = 3, K: int = 33):
                 best_v, best = float(v[i]), (float(kds[i]), kss[i])
             step = (hi - lo) / (K - 1)
             lo, hi = max(kds[i] - step, 0.0), min(kds[i] + step, kd_max)
-        kd_out[c], ks_out[:, c] = best
+        kd = np.array([best[0]])
+        full = np.maximum(ratios(kd, tc, lam, gs, pos_g).min(1)[0], 0.0)         # every node: exact for kd
+        kd_out[c], ks_out[:, c] = best[0], np.where(np.isfinite(full), full, 0.0)
     return kd_out, ks_out
 
 
@@ -777,15 +805,15 @@ def glossy_floor_alpha_min(brdf: TabulatedBRDF) -> float:
 
 
 def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: str | None = None,
-                       n_grid: int = 8, per_view: bool = True) -> FloorParts:
+                       n_grid: int = 8, per_view: bool = True, min_share: float = 0.0) -> FloorParts:
     """The glossy floor of ``brdf``: f = kd/π + ks g + r, g a Cycles microfacet closure (``glossy_eval``: GGX or
     Beckmann of α, F = 1, height-correlated Smith G2, single scattering: what the Glossy BSDF node and OSL
     ``microfacet`` render), with r >= 0 at every table node (``glossy_nodes``: g in the table's layout; bilinear
     interpolation then keeps r >= 0 everywhere).  For a given (dist, α), (kd, ks) per channel maximise the
     floor's albedo kd + ks Ē_g (Ē the hemispherical average of ``glossy_albedo``) under those constraints
     (``_best_split``, a 2-variable linear programme).  The rule for (dist, α) (``dist`` / ``alpha`` if given):
-    the largest floor albedo summed over channels; per dist a log grid of ``n_grid`` α in
-    [``glossy_floor_alpha_min``, 1], then a golden-section search in log α between the best value's neighbours.
+    the largest floor albedo summed over channels: a log grid of ``n_grid`` α in [``glossy_floor_alpha_min``, 1]
+    per dist, then a golden-section search in log α between the best grid value's neighbours (its dist).
     Both tails are tried because r >= 0 must hold in the far tails too: a GGX floor (heavy tails) fits under a
     GGX lobe but not under a Beckmann one (its tails fall below GGX's: ks = 0), a Beckmann floor fits under both.
     What renders: kd/π + ks g (exact, Cycles evaluates it) + the interpolated r, so the floor's parts are not
@@ -793,7 +821,9 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     (``extent`` < 1: f = 0 outside the zoom) get no floor.  ``per_view`` (isotropic tables): ks is chosen per θo
     node (ks_o, the largest for each row; rendered linearly interpolated in θo like the table, ``floor_ks``), so
     that one bad row (a MERL file's grazing bins, which bind a shared ks to 0.43 of the lobe's 0.8) does not cap
-    every view.  Returns ``FloorParts`` (mode "glossy")."""
+    every view.  ``min_share``: skip the α refinement when the best grid value's share of the albedo is below it
+    ("auto" passes half of ``GLOSSY_SHARE_MIN``: a floor too small to be used costs one grid pass).
+    Returns ``FloorParts`` (mode "glossy")."""
     half = bool(getattr(brdf, "half", False))
     table = np.asarray(brdf.table, np.float64)
     D, n_o = table.shape[:2]
@@ -807,13 +837,14 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                              half, float(getattr(brdf, "extent", 1.0)) if half else 1.0, **vg)
     if half and brdf.extent < 1.0:
         return FloorParts(np.zeros(3), np.zeros(3), 0.0, residual(table), "glossy", 0.0)
-    key = ("glossy", alpha, dist, n_grid, per_view) + _table_key(brdf)
+    key = ("glossy", alpha, dist, n_grid, per_view, min_share) + _table_key(brdf)
     if key in _FLOOR_CACHE:
         return _FLOOR_CACHE[key]
     lam = lambert_nodes(brdf)
     t = table
     mu = np.cos(_AVG_THETA)
     per_view = bool(per_view) and bool(brdf.iso)
+    pairs = _node_pairs(brdf)
     th_o = theta_nodes(n_o)
     w_o = np.cos(th_o) * np.sin(th_o)
     w_o /= w_o.sum()
@@ -822,7 +853,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     def solve(a, dg):
         k = (float(a), dg)
         if k not in memo:
-            g = glossy_nodes(brdf, float(a), dg)
+            g = glossy_nodes(brdf, float(a), dg, pairs)
             if per_view:                                  # ks per θo node: weights cos θ sin θ of the nodes
                 Eg = glossy_albedo(np.cos(th_o), float(a), dg, 128) * w_o
                 kd, ks = _best_split(t, lam, g, Eg)
@@ -832,25 +863,30 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                 ks = np.repeat(ks, n_o, 0)
             memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, g, Eg)
         return memo[k]
-    for dg in (FLOOR_DISTS if dist is None else (dist,)):
-        if alpha is not None:
+    E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
+    dists = FLOOR_DISTS if dist is None else (dist,)
+    if alpha is not None:
+        for dg in dists:
             solve(validation.check_range("alpha_g", alpha, 1e-3, 1.0), dg)
-            continue
+    else:
         grid = np.geomspace(glossy_floor_alpha_min(brdf), 1.0, n_grid)
-        vals = [solve(a, dg)[0] for a in grid]
-        i = int(np.argmax(vals))
-        if vals[i] <= 0:
-            continue
-        lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n_grid - 1)])
-        gr = 0.5 * (np.sqrt(5.0) - 1.0)
-        x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-        for _ in range(8):                                 # golden section in log α (unimodal near the best)
-            if solve(np.exp(x1), dg)[0] >= solve(np.exp(x2), dg)[0]:
-                hi, x2 = x2, x1
-                x1 = hi - gr * (hi - lo)
-            else:
-                lo, x1 = x1, x2
-                x2 = lo + gr * (hi - lo)
+        for dg in dists:
+            for a in grid:
+                solve(a, dg)
+        a0, dg = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))      # ties: GGX
+        best_share = (memo[(a0, dg)][0] - np.sum(memo[(a0, dg)][1])) / 3.0 / max(E_f, 1e-30)
+        if best_share >= min_share:                        # refine the best distribution's α
+            i = int(np.argmin(np.abs(grid - a0)))
+            lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n_grid - 1)])
+            gr = 0.5 * (np.sqrt(5.0) - 1.0)
+            x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+            for _ in range(8):                             # golden section in log α (unimodal near the best)
+                if solve(np.exp(x1), dg)[0] >= solve(np.exp(x2), dg)[0]:
+                    hi, x2 = x2, x1
+                    x1 = hi - gr * (hi - lo)
+                else:
+                    lo, x1 = x1, x2
+                    x2 = lo + gr * (hi - lo)
     a_best, d_best = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))    # ties: GGX
     total, kd, ks, g, Eg = memo[(a_best, d_best)]
     if kd.max() <= 1e-6:
@@ -858,8 +894,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     if ks.max() <= 1e-6:
         ks = np.zeros_like(ks)
     r = t - kd * lam[..., None] - ks[None, :, :] * g[..., None]       # >= 0 up to rounding
-    E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
-    share = float((total - np.sum(kd)) / 3.0 / E_f) if E_f > 0 and ks.any() else 0.0
+    share = float(np.sum(Eg[:, None] * ks[: len(Eg)]) / 3.0 / E_f) if E_f > 0 and ks.any() else 0.0
     ks_view = ks if per_view and ks.any() else None
     out = FloorParts(kd, ks.max(0), float(a_best) if ks.any() else 0.0, residual(r), "glossy", share,
                      d_best if ks.any() else "ggx", ks_view)
@@ -899,7 +934,7 @@ def floor_parts(brdf: TabulatedBRDF, floor=True) -> FloorParts:
     else the Diffuse floor alone."""
     mode = floor_mode(floor)
     if mode in ("auto", "glossy"):
-        parts = glossy_floor_split(brdf)
+        parts = glossy_floor_split(brdf, min_share=0.5 * GLOSSY_SHARE_MIN if mode == "auto" else 0.0)
         if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN:
             return parts
         mode = "diffuse"
