@@ -656,7 +656,8 @@ def _lambda(z, alpha, dist: str):
 def glossy_eval(wi, wo, alpha, dist: str = "ggx") -> np.ndarray:
     """The glossy floor's lobe g (N,) in 1/sr: Cycles' isotropic microfacet reflection closure ``dist`` ("ggx":
     the Glossy node's GGX / OSL ``microfacet("ggx")``; "beckmann"), F = 1, height-correlated Smith G2, single
-    scattering: D G2 / (4 cos θi cos θo) (``precompute.cycles.ggx.bsdf_eval`` / cos θi), 0 below the horizon."""
+    scattering: D G2 / (4 cos θi cos θo) (``precompute.cycles.ggx.bsdf_eval`` / cos θi) for ωi, ωo above the horizon
+    (callers mask the rest: Cycles evaluates 0 there)."""
     if dist == "ggx":
         return _ggx_unit(wi, wo, alpha)
     h = wi + wo
