@@ -618,7 +618,8 @@ def floor_split(brdf: TabulatedBRDF, floor: bool = True):
 
 # ----------------------------------------------------------------------------- the glossy floor
 #: ``floor="auto"`` (the default, ``floor=True``) adds the glossy floor when it takes at least this share of the
-#: table's hemispherical albedo (else the Diffuse floor alone): the extra Glossy closure costs ~3 % per sample.
+#: table's hemispherical albedo (else the Diffuse floor alone): the extra Glossy closure costs 6 % more instructions
+#: per sample on SVM (``bench/out/tabulated_floor_callgrind.md``), and a floor worth less saves little noise.
 GLOSSY_SHARE_MIN = 0.1
 #: the floor modes of ``floor_parts`` / ``closure_tables`` (True = "auto", False = "none")
 FLOOR_MODES = ("auto", "glossy", "diffuse", "none")
