@@ -9,7 +9,8 @@ interleaved A/B/C... in each round, medians over the rounds.
 Rows: SVM anisotropic Glossy (the baseline), the same Glossy node on Cycles' OSL backend (the tables need
 OSL: the backend's own overhead), an anisotropic 10² x 10² table (a bi-scale bake's size), an isotropic
 32² x 32 table (an analytic BRDF), a MERL import (``merl_ops.material_from_merl`` of a MERL-format file
-written from an analytic BRDF: iso 32² x 32) and a Dong NDF table (``make_ndf_material`` of the filtered
+written from an analytic BRDF: iso 32² x 32; with its default floors, Diffuse + glossy, and with the Diffuse floor alone: the glossy floor's cost)
+and a Dong NDF table (``make_ndf_material`` of the filtered
 NDF of a brushed height field: the half-vector table of ``ndf_brdf``).  "SVM table" rows: the same materials on
 Cycles' default shading system (SVM), which renders the table as nodes (``node_groups/tabulated_svm``: alias-table
 bin pick, one narrow Glossy node).
@@ -106,16 +107,19 @@ def main(argv: list[str]) -> int:
     aniso_mat = tabulated_material.make_tabulated_material(tb.TabulatedBRDF.from_function(glossy, 10), "aniso table")
     iso_mat = tabulated_material.make_tabulated_material(
         tb.TabulatedBRDF.from_function(glossy, 32, iso=True, n_theta=32), "iso table")
-    merl_mat = merl_ops.material_from_merl(merl_path, "MERL ggx")
+    merl_mat = merl_ops.material_from_merl(merl_path, "MERL ggx")          # floor "auto": the glossy floor here
+    merl_diffuse = merl_ops.material_from_merl(merl_path, "MERL ggx diffuse floor", floor="diffuse")
     cases = [("SVM aniso Glossy", svm, False), ("OSL backend, same Glossy", svm, True),
              ("table aniso 10²x10² (OSL)", aniso_mat, True),
              ("table iso 32²x32 (OSL)", iso_mat, True),
              ("MERL import iso 32²x32 (OSL)", merl_mat, True),
+             ("MERL, Diffuse floor only (OSL)", merl_diffuse, True),
              (f"Dong NDF table {ndf_mat['tabulated_res']}² (OSL)", ndf_mat, True),
              # the same materials on Cycles' default shading system: the table as SVM nodes (node_groups/tabulated_svm)
              ("SVM table aniso 10²x10²", aniso_mat, False),
              ("SVM table iso 32²x32", iso_mat, False),
              ("SVM table MERL iso 32²x32", merl_mat, False),
+             ("SVM table MERL, Diffuse floor only", merl_diffuse, False),
              (f"SVM table Dong NDF {ndf_mat['tabulated_res']}² (half)", ndf_mat, False)]
     cases = [c for c in cases if args.only is None or c[0] in ("SVM aniso Glossy",) or args.only in c[0]]
     times = {name: [] for name, _, _ in cases}

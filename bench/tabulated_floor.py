@@ -1,11 +1,14 @@
-"""Noise against run time of the tabulated-BRDF closure with and without its smooth floor (issue 16 items 1, 5:
-``tabulated_brdf.floor_split``, a Diffuse closure of kd plus the one-lobe table closure of the residual).
+"""Noise against run time of the tabulated-BRDF closure with and without its floors (issue 16 items 1, 5:
+``tabulated_brdf.floor_parts``: a Diffuse closure of kd, a GGX Glossy closure of ks (the glossy floor, when "auto"
+finds it worth >= 10 % of the albedo), plus the one-lobe table closure of the residual).
 
 Scene: what the user gets from File > New (the startup file's POINT lamp, 1000 W, radius 0.1, ~7.3 m away, and a
 grey world 0.6), a UV sphere of radius 2.2 carrying the material, 64 x 48 px, adaptive sampling off, direct light
 only.  Materials: MERL-format files written from analytic BRDFs (a Lambertian 0.5/π; Cycles' GGX α 0.2 x 0.8 +
-Lambert (0.1, 0.2, 0.3)) imported by ``merl_ops.material_from_merl`` with ``floor`` on / off, and the analytic
-twins (Diffuse BSDF; Glossy GGX + Diffuse) as references.  Per material and spp: CPU seconds per frame (this
+Lambert (0.1, 0.2, 0.3); Cycles' Beckmann α 0.3 x 0.8 + the same Lambert: a lobe that is NOT the floor's GGX)
+imported by ``merl_ops.material_from_merl`` with ``floor`` True ("auto": the glossy floor where it pays),
+"diffuse" (last round's Diffuse floor alone) and False, and the analytic twins (Diffuse BSDF; Glossy GGX /
+Beckmann + Diffuse) as references.  Per material and spp: CPU seconds per frame (this
 process, user + sys) and the relative RMS error of the pixels against a reference image of the same material at
 ``--ref-spp`` (its own converged image: the noise), over ``--seeds`` seeds; rounds interleave the materials.
 Error x sqrt(time) is the noise at equal time (lower is better; the ratio no floor / floor is the speed-up to the
@@ -46,6 +49,7 @@ def main(argv: list[str]) -> int:
     blender()
     import bpy
 
+    from scratch_materials.precompute.cycles import ggx
     from scratch_materials.precompute.tables import merl
     from scratch_materials.precompute.tables import tabulated_brdf as tb
     from scratch_materials.scratch_addon import materials, merl_ops, render
@@ -62,9 +66,15 @@ def main(argv: list[str]) -> int:
     def glossy(wi, wo):
         return 0.8 * tb._ggx_unit(wi, wo, 0.2)[:, None] * np.ones(3) + kd_g / np.pi
 
-    files = {"Lambert 0.5": os.path.join(tmp, "lambert.binary"), "GGX 0.2 + Lambert": os.path.join(tmp, "ggx.binary")}
+    def beckmann(wi, wo):          # Cycles' Beckmann Glossy (F = 1): eval = f cos θi (``precompute.cycles.ggx``)
+        ev, _ = ggx.bsdf_eval([0, 0, 1.0], [1.0, 0, 0], 0.3, 0.3, wo, wi, dist="beckmann")
+        return 0.8 * (ev / np.maximum(wi[:, 2], 1e-9))[:, None] * np.ones(3) + kd_g / np.pi
+
+    files = {"Lambert 0.5": os.path.join(tmp, "lambert.binary"), "GGX 0.2 + Lambert": os.path.join(tmp, "ggx.binary"),
+             "Beckmann 0.3 + Lambert": os.path.join(tmp, "beckmann.binary")}
     merl.write_merl(files["Lambert 0.5"], np.full((*merl.SHAPE, 3), 0.5 / np.pi))
     merl.write_merl(files["GGX 0.2 + Lambert"], merl.tabulate(glossy))
+    merl.write_merl(files["Beckmann 0.3 + Lambert"], merl.tabulate(beckmann))
 
     def analytic(kind):
         m = materials.new_material(f"analytic {kind}")
@@ -76,8 +86,8 @@ def main(argv: list[str]) -> int:
         else:
             d.inputs["Color"].default_value = (*kd_g, 1.0)
             g = nt.nodes.new("ShaderNodeBsdfGlossy")
-            g.distribution = "GGX"
-            g.inputs["Roughness"].default_value = 0.2 ** 0.5
+            g.distribution = "GGX" if kind.startswith("GGX") else "BECKMANN"
+            g.inputs["Roughness"].default_value = (0.2 if kind.startswith("GGX") else 0.3) ** 0.5
             g.inputs["Color"].default_value = (0.8, 0.8, 0.8, 1.0)
             a = nt.nodes.new("ShaderNodeAddShader")
             nt.links.new(d.outputs[0], a.inputs[0])
@@ -88,9 +98,11 @@ def main(argv: list[str]) -> int:
 
     mats = []
     for kind, path in files.items():
-        for floor in (True, False):
-            m = merl_ops.material_from_merl(path, f"{kind} {'floor' if floor else 'no floor'}", floor=floor)
-            mats.append((kind, "floor" if floor else "no floor", m))
+        for label, floor in (("auto floor", True), ("diffuse floor", "diffuse"), ("no floor", False)):
+            if kind == "Lambert 0.5" and label == "diffuse floor":
+                continue                                  # "auto" is the Diffuse floor there
+            m = merl_ops.material_from_merl(path, f"{kind} {label}", floor=floor)
+            mats.append((kind, label, m))
         mats.append((kind, "analytic", analytic(kind)))
 
     def render_img(mat, osl, spp, seed):
@@ -123,13 +135,17 @@ def main(argv: list[str]) -> int:
             errs, ts = stats[(kind, label)]
             e, t = float(np.sqrt(np.mean(np.square(errs)))), statistics.median(ts)
             bias = refs[(kind, label)].mean() / refs[(kind, "analytic")].mean() - 1.0
-            kd = m.get("tabulated_floor", [0.0])[0] if label != "analytic" else float("nan")
-            rows.append(["OSL" if osl else "SVM", kind, label, f"{kd:.3f}", f"{100 * e:.1f} %", f"{1e3 * t:.0f}",
+            if label != "analytic":
+                kd, gf = m.get("tabulated_floor", [0.0])[0], list(m.get("tabulated_glossy_floor", [0.0] * 4))
+                floors = f"{kd:.3f}" + (f" / {gf[0]:.3f}, α {gf[3]:.3f}" if gf[0] > 0 else " / -")
+            else:
+                floors = "-"
+            rows.append(["OSL" if osl else "SVM", kind, label, floors, f"{100 * e:.1f} %", f"{1e3 * t:.0f}",
                          f"{e * np.sqrt(t):.4f}", f"{100 * bias:+.2f} %"])
     load1 = os.getloadavg()
     plt = pyplot()
     cols = [(k, lab) for k, lab, _ in mats]
-    fig, axes = plt.subplots(2, len(cols), figsize=(1.6 * len(cols), 3.0))
+    fig, axes = plt.subplots(2, len(cols), figsize=(1.3 * len(cols), 2.6))
     for i, sysname in enumerate(("SVM", "OSL")):
         for j, (k, lab) in enumerate(cols):
             ax = axes[i, j]
@@ -144,7 +160,7 @@ def main(argv: list[str]) -> int:
     img_path = ROOT / "docs" / "img" / "tabulated_floor.png"
     img_path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(img_path, dpi=150)
-    report("tabulated_floor", ["Cycles", "MERL file", "material", "kd (R)", f"pixel rel. RMS error, {args.spp} spp",
+    report("tabulated_floor", ["Cycles", "MERL file", "material", "kd / ks (R), α_g", f"pixel rel. RMS error, {args.spp} spp",
                                "CPU ms / frame", "error x sqrt(s)", f"mean vs analytic ({args.ref_spp} spp)"], rows,
            notes=f"startup-file lighting (POINT 1000 W radius 0.1 + grey world 0.6), UV sphere, {W}x{H} px, direct light "
                  f"only, adaptive sampling off; error: RMS over the sphere's pixels of (image - the same material at "

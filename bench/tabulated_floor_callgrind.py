@@ -1,10 +1,12 @@
-"""Load-free cost of the tabulated closure's smooth floor (the extra Diffuse closure, ``tabulated_brdf.floor_split``):
+"""Load-free cost of the tabulated closure's floors (the extra Diffuse closure, ``tabulated_brdf.floor_split``, and the
+glossy floor's Glossy closure with its per-view colour lookup, ``tabulated_brdf.glossy_floor_split``):
 instructions per sample under valgrind, the method of ``bench/iridescence_callgrind`` (its helpers are reused).
 
 One valgrind child renders the whole-frame scene of ``bench/tabulated_cost`` (UV sphere filling an orthographic
 frame, studio world + area lamp, adaptive sampling off, one render thread) at 32 x 32 on Cycles SVM (no OSL JIT
 under valgrind) for: the SVM anisotropic Glossy (the baseline), and a table of GGX α 0.2 x 0.8 + Lambert
-(0.1, 0.15, 0.2) (iso 16² x 16, kd 0.15-0.25) with the floor on and off; per config 1 and N + 1 spp, calling getppid() after each
+(0.1, 0.15, 0.2) (iso 16² x 16) with the Diffuse + glossy floors (the default "auto"), the Diffuse floor alone
+(kd 0.15-0.25) and no floor; per config 1 and N + 1 spp, calling getppid() after each
 render (callgrind dumps there).  Instructions per sample = (Ir(N + 1) - Ir(1)) / N of Cycles'
 ``render_samples_full_pipeline`` (inclusive).
 
@@ -19,7 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-NAMES = ["SVM aniso Glossy", "table, floor", "table, no floor"]
+NAMES = ["SVM aniso Glossy", "table, Diffuse + glossy floor", "table, Diffuse floor", "table, no floor"]
 
 
 def _child(n: int) -> int:
@@ -33,8 +35,9 @@ def _child(n: int) -> int:
     svm = baseline_material()
     tmp = tempfile.mkdtemp()
     brdf = tb.TabulatedBRDF.from_function(glossy, 16, iso=True, n_theta=16)     # small: numpy is slow under valgrind
-    mats = {NAMES[0]: svm, NAMES[1]: tabulated_material.make_tabulated_material(brdf, "floor"),
-            NAMES[2]: tabulated_material.make_tabulated_material(brdf, "nofloor", floor=False)}
+    mats = {NAMES[0]: svm, NAMES[1]: tabulated_material.make_tabulated_material(brdf, "floor"),       # "auto": glossy
+            NAMES[2]: tabulated_material.make_tabulated_material(brdf, "diffuse", floor="diffuse"),
+            NAMES[3]: tabulated_material.make_tabulated_material(brdf, "nofloor", floor=False)}
     os.getppid()                                   # dump part 1: setup
     for name in NAMES:
         sphere.data.materials.clear()
@@ -68,9 +71,10 @@ def main(argv: list[str]) -> int:
     parts = _parts(prefix)[1:1 + 2 * len(NAMES)]
     ir = {name: (parts[2 * i + 1] - parts[2 * i]) / n for i, name in enumerate(NAMES)}
     base = ir[NAMES[0]]
-    rows = [[name, f"{ir[name] / 1024:,.0f}", f"{ir[name] / base:.3f}x", f"{ir[name] / ir[NAMES[2]]:.3f}x"] for name in NAMES]
+    rows = [[name, f"{ir[name] / 1024:,.0f}", f"{ir[name] / base:.3f}x", f"{ir[name] / ir[NAMES[3]]:.3f}x",
+             f"{ir[name] / ir[NAMES[2]]:.3f}x"] for name in NAMES]
     report("tabulated_floor_callgrind", ["material (Cycles SVM)", "Ir / pixel-sample", "vs SVM aniso Glossy",
-                                         "vs no floor"], rows,
+                                         "vs no floor", "vs Diffuse floor"], rows,
            notes=f"valgrind callgrind, inclusive Ir of Cycles' render_samples_full_pipeline, (Ir({n + 1} spp) - Ir(1 spp)) / "
                  f"{n} / 1024 pixels, 32x32 whole-frame sphere, studio world + area lamp, one render thread; "
                  f"load-independent instruction counts")

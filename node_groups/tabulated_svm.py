@@ -16,7 +16,9 @@ directions).  What differs from the OSL shader (numpy twin: ``tabulated_brdf.sam
 - the ωi bin: Walker's alias table of node o (``tabulated_brdf.svm_images`` "A": one Closest lookup at
   the centre of texel (floor(h M), o) returns prob_j, alias_j - j and c / P of both), instead of the CDF walk;
 - the smooth floor (``tabulated_brdf.floor_split``): a Diffuse BSDF of colour kd x Tint added to the Glossy
-  (``_floor``), the images holding the residual, as the OSL shader's FLOOR;
+  (``_floor``), the images holding the residual, as the OSL shader's FLOOR; the glossy floor
+  (``tabulated_brdf.glossy_floor_split``): a second Glossy BSDF (GGX or Beckmann, roughness √α_g, colour ks x Tint),
+  GFLOOR;
 - f: one Linear lookup of the "F" atlas (node o's tile bordered by a copy of its edges: the clamped bilinear
   interpolation of the OSL shader, never bleeding into a neighbour tile); in the EEVEE variant (``ensure(eevee=True)``)
   four Closest lookups weighted by Mix nodes, because EEVEE's Linear lookup picks a mip level from the per-pixel
@@ -33,7 +35,8 @@ lookups and ~45 Math / Vector Math nodes (isotropic: 50 nodes in the group); cal
 rewrite of VERSION 3), the extra being SVM node interpretation (svm_eval_nodes 23 % of the frame, White Noise
 3 %, Math / Vector Math 4.5 %) and image lookups only 2 %: hence one Linear lookup of the padded atlas rather
 than 4 Closest lookups and their weights.  The smooth floor's Diffuse BSDF (``_floor``) adds 3.0 % instructions per
-sample (``bench/tabulated_floor_callgrind``: 1.700x vs 1.651x the baseline, a GGX + Lambert table).  Cycles compiles every unlinked constant input to its own value
+sample (``bench/tabulated_floor_callgrind``: 1.700x vs 1.650x the baseline, a GGX + Lambert table); the glossy floor's
+Glossy BSDF and its per-view colour lookup 6.0 % more (1.802x).  Cycles compiles every unlinked constant input to its own value
 node, so the count of nodes, not their kind, sets the price.
 """
 from __future__ import annotations
@@ -69,6 +72,10 @@ def table_hash(tb: tbm.ClosureTables) -> str:
         h.update(np.ascontiguousarray(a, np.float32).tobytes())
     h.update(repr((tb.res, tb.iso, tb.n_o, float(tb.alpha), tb.half, float(tb.extent), VERSION)).encode())
     h.update(np.asarray(getattr(tb, "kd", np.zeros(3)), np.float32).tobytes())       # the Diffuse floor
+    if np.any(getattr(tb, "ks", 0.0)):                # the glossy floor (other tables' hashes unchanged)
+        h.update(np.asarray(tb.ks, np.float32).tobytes() + np.float32(tb.alpha_g).tobytes() + tb.dist_g.encode())
+        if getattr(tb, "ks_view", None) is not None:
+            h.update(np.asarray(tb.ks_view, np.float32).tobytes())
     if getattr(tb, "view_a", None) is not None:      # view grids only: the hash of other tables is unchanged
         for a in (tb.view_a, tb.view_b):
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -82,6 +89,8 @@ def images(tb: tbm.ClosureTables) -> dict:
            "F": _data_image(IMAGE_PREFIX + "F", arr["F"], alpha=False)}
     if "V" in arr:
         out["V"] = _data_image(IMAGE_PREFIX + "V", arr["V"], alpha=False)
+    if "K" in arr:
+        out["K"] = _data_image(IMAGE_PREFIX + "K", arr["K"], alpha=False)
     for img in out.values():    # EEVEE uploads float images as half floats by default (Cycles reads float32):
         img.use_half_precision = False     # the guide's node index up to 18 would round by up to 0.008
     return out
@@ -264,14 +273,33 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
     g._set(glossy.inputs["Color"], colour)
     g._set(glossy.inputs["Roughness"], float(glossy_node_params(tb.alpha, tb.alpha)[0]))
     g._set(glossy.inputs["Normal"], m)
-    ng.links.new(_floor(g, tb, gin.outputs["Tint"], glossy.outputs["BSDF"], 2.0 if _break == "floor" else 1.0),
-                 gout.inputs["BSDF"])
+    ng.links.new(_floor(g, tb, gin.outputs["Tint"], glossy.outputs["BSDF"], 2.0 if _break == "floor" else 1.0,
+                        xn if tb.iso else None, imgs.get("K")), gout.inputs["BSDF"])
 
 
-def _floor(g, tb: tbm.ClosureTables, tint, bsdf, scale: float = 1.0):
-    """The smooth floor (``tabulated_brdf.floor_split``): Diffuse BSDF of colour kd x Tint added to the table's
-    Glossy ``bsdf`` (light sampling sees the lamp at every sample); ``bsdf`` itself when kd = 0."""
+def _floor(g, tb: tbm.ClosureTables, tint, bsdf, scale: float = 1.0, view_x=None, k_img=None):
+    """The floors (``tabulated_brdf.floor_parts``): a Diffuse BSDF of colour kd x Tint and (glossy floor) a Glossy
+    BSDF (GGX or Beckmann: ``dist_g``, roughness √α_g, colour ks x Tint, the shading normal) added to the table's Glossy ``bsdf`` (light
+    sampling sees the lamp at every sample); ``bsdf`` itself when kd = ks = 0.  ``scale`` multiplies both (tests:
+    a floor counted twice).  Per-view colours (``ks_view``, isotropic tables): ks(θo) from a Linear lookup of the
+    1 x n_o image "K" at u = (x (n_o - 1) + 1/2) / n_o, ``view_x`` = x the graph's clamped θo index / (n_o - 1):
+    the linear interpolation between the θo nodes of ``tabulated_brdf.floor_ks``."""
     kd = np.asarray(getattr(tb, "kd", np.zeros(3)), np.float64) * scale
+    ks = np.asarray(getattr(tb, "ks", np.zeros(3)), np.float64) * scale
+    if ks.any():
+        gl = g.node("ShaderNodeBsdfGlossy", distribution="BECKMANN" if tb.dist_g == "beckmann" else "GGX")
+        if getattr(tb, "ks_view", None) is not None and view_x is not None and k_img is not None:
+            n_o = len(tb.ks_view)
+            tk = g.node("ShaderNodeTexImage", image=k_img, interpolation="Linear", extension="EXTEND")
+            g._set(tk.inputs["Vector"], g.madd(view_x, ((n_o - 1.0) / n_o, 0.0, 0.0), (0.5 / n_o, 0.5, 0.0)))
+            col = g.vmath("MULTIPLY", tint, tk.outputs["Color"])
+            if scale != 1.0:
+                col = g.vmath("SCALE", col, scale=scale)
+        else:
+            col = g.vmath("MULTIPLY", tint, tuple(float(c) for c in ks))
+        g._set(gl.inputs["Color"], col)
+        g._set(gl.inputs["Roughness"], float(glossy_node_params(tb.alpha_g, tb.alpha_g)[0]))
+        bsdf = g.add_shader(gl.outputs["BSDF"], bsdf)
     if not kd.any():
         return bsdf
     diff = g.node("ShaderNodeBsdfDiffuse")

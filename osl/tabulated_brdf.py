@@ -10,11 +10,13 @@ from ..precompute.tables.tabulated_brdf import MAX_FLOATS, VIEW_GUIDE_BINS, clos
 from . import const_array, specialise
 
 
-def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, floor: bool = True) -> str:
+def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, floor=True) -> str:
     """OSL source of the closure for ``brdf`` (``TabulatedBRDF``): ``tabulated_brdf.osl`` with its
     tables, ISO/RES/NO/ALPHA defined.  Inputs ``Tangent`` (a Tangent node, UV map), ``Tint``;
     output ``BSDF``.  ``alpha``: the closure's GGX alpha (default ``default_alpha(res)``); ``floor``: split off
-    the smooth Diffuse floor (``tabulated_brdf.floor_split``, FLOOR / KD_* defined when kd > 0)."""
+    the smooth Diffuse floor (``tabulated_brdf.floor_split``, FLOOR / KD_* defined when kd > 0) and the glossy
+    floor (``tabulated_brdf.floor_parts``: True = "auto", "glossy", "diffuse", "none"; GFLOOR / KS_* / ALPHA_G /
+    GDIST defined when ks > 0)."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"name: expected an OSL identifier, got {name!r}")
     tb = closure_tables(brdf, alpha, floor)
@@ -28,6 +30,12 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, flo
         view = dict(VIEW_GRID=True, NA=len(tb.view_a), NB=len(tb.view_b), VGBINS=VIEW_GUIDE_BINS)
     if tb.kd.any():                 # the smooth Diffuse floor (tabulated_brdf.floor_split)
         view.update(FLOOR=True, KD_R=float(tb.kd[0]), KD_G=float(tb.kd[1]), KD_B=float(tb.kd[2]))
+    if tb.ks.any():                 # the glossy floor (tabulated_brdf.glossy_floor_split)
+        view.update(GFLOOR=True, KS_R=float(tb.ks[0]), KS_G=float(tb.ks[1]), KS_B=float(tb.ks[2]),
+                    ALPHA_G=float(tb.alpha_g), GDIST=f'"{tb.dist_g}"')
+        if tb.ks_view is not None:  # isotropic tables: the colour per θo node (tabulated_brdf.floor_ks)
+            view.update(GFLOOR_VIEW=True)
+            tables += const_array("KSV", tb.ks_view.ravel())
     return specialise("tabulated_brdf.osl",
                       dict(SHADER_NAME=name, ISO=bool(tb.iso), RES=tb.res, ND=D, NO=tb.n_o, CELL=2.0 / tb.res,
                            ALPHA=tb.alpha, HALF=bool(tb.half), EXTENT=float(tb.extent), **view),

@@ -47,10 +47,10 @@ def file_albedo(table, wo, n_theta: int = 90, n_phi: int = 180) -> np.ndarray:
     return np.array(out)
 
 
-def energy_check(table, brdf, floor: bool = True) -> dict:
+def energy_check(table, brdf, floor=True) -> dict:
     """What the imported material reflects against what the file measures: the directional albedo (mean of R,
-    G, B) at ``ALBEDO_VIEWS_DEG`` of the rendered closure (``tabulated_brdf.closure_albedo``: the Diffuse floor
-    kd plus the table residual) and of the file (``file_albedo``), and the worst relative difference.  The
+    G, B) at ``ALBEDO_VIEWS_DEG`` of the rendered closure (``tabulated_brdf.closure_albedo``: the floors
+    (Diffuse kd, glossy ks g) plus the table residual) and of the file (``file_albedo``), and the worst relative difference.  The
     table's error is its resolution; this is its measure in energy (a white furnace renders this albedo)."""
     a = np.radians(ALBEDO_VIEWS_DEG)
     wo = np.stack([np.sin(a), np.zeros_like(a), np.cos(a)], 1)
@@ -62,11 +62,13 @@ def energy_check(table, brdf, floor: bool = True) -> dict:
 
 
 def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None,
-                       floor: bool = True):
+                       floor=True):
     """Material of the MERL BRDF in ``path`` (``res`` x ``res`` ωi cells and ``n_theta`` view angles on
     the closure's isotropic grid; missing bins take their measured neighbour's value, ``merl.fill_missing``).
-    ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure, only the rest through the table
-    closure (``tabulated_brdf.floor_split``: a point lamp then lights the diffuse part at every sample).
+    ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure and (True = "auto", or "glossy") a GGX /
+    Beckmann lobe under its glossy part as a Glossy closure, only the rest through the table closure
+    (``tabulated_brdf.floor_parts``: a point lamp then lights both at every sample); "diffuse": the Diffuse floor
+    alone; False / "none": no floor.
     Custom properties ``merl_albedo_views`` / ``merl_albedo_table`` / ``merl_albedo_file``: the rendered
     closure's and the file's directional albedo at those view angles (``energy_check``); what each render path
     shows: ``tabulated_svm`` / ``tabulated_eevee`` (``make_tabulated_material``).

@@ -65,7 +65,7 @@ def tabulated_script(mat, source: str):
 
 def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | None = None, svm_twin=None,
                             kind: str = "tabulated", svm_table: bool = True, eevee_table: bool = True,
-                            floor: bool = True) -> bpy.types.Material:
+                            floor=True) -> bpy.types.Material:
     """Material rendering ``brdf`` (``TabulatedBRDF``) exactly in Cycles (OSL: ``osl/tabulated_brdf.osl``;
     SVM / GPU: the same closure as nodes, ``node_groups.tabulated_svm``) and EEVEE (the graph's EEVEE variant;
     ``eevee_table=False``: a fitted node twin).  ``svm_twin(tree) -> socket`` builds the fitted twin (default:
@@ -74,8 +74,11 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     ``alpha``: the closure's GGX alpha (default ``tabulated_brdf.default_alpha(res)``).  Custom properties
     ``tabulated_svm`` / ``tabulated_eevee``: "table" or "fit" (what Cycles SVM / EEVEE render); ``tabulated_twin_rel_l1``:
     the fitted twin's error, only when a path renders the default twin (it is computed only then).  ``floor``: render
-    the BRDF's smooth part kd/π as a Diffuse closure and only the residual through the table closure
-    (``tabulated_brdf.floor_split``; custom property ``tabulated_floor``: kd).
+    the BRDF's smooth part kd/π as a Diffuse closure, and (glossy floor) a GGX lobe ks g_α under the table as a
+    Glossy closure, only the residual through the table closure (``tabulated_brdf.floor_parts``: True = "auto",
+    the glossy floor when it takes >= ``GLOSSY_SHARE_MIN`` of the albedo; "glossy", "diffuse", "none" / False;
+    custom properties ``tabulated_floor``: kd, ``tabulated_glossy_floor``: (ks R, G, B, α_g), zeros when none (ks: the
+    largest over the views when it varies with θo), ``tabulated_glossy_floor_dist``: "ggx" / "beckmann" / "").
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
@@ -109,6 +112,8 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     mat["tabulated_res"] = int(brdf.res)
     mat["tabulated_iso"] = bool(brdf.iso)
     mat["tabulated_floor"] = [float(c) for c in tables.kd]
+    mat["tabulated_glossy_floor"] = [*(float(c) for c in tables.ks), float(tables.alpha_g)]
+    mat["tabulated_glossy_floor_dist"] = tables.dist_g if tables.ks.any() else ""
     if getattr(brdf, "half", False):
         mat["tabulated_half_extent"] = float(brdf.extent)      # a half-vector table zoomed to its lobe
     if twin is not None:

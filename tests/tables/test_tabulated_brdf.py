@@ -112,15 +112,18 @@ def test_weight_is_eval_cos_over_pdf(tables, kind):
     np.testing.assert_allclose(np.linalg.norm(m, axis=1), 1, rtol=1e-12)
     np.testing.assert_allclose(np.sum(m * wi, 1), np.sum(m * WO, 1), atol=1e-12)   # m mirrors ωo into ωi
     A = tb.lobe_albedo(np.sum(WO * m, 1), T.alpha)
-    kd, R = tb.floor_split(B)                               # the closure renders the residual r = f - kd/π
+    P = tb.floor_parts(B)                   # the closure renders the residual r = f - kd/π - ks g (the floors)
+    kd, R = P.kd, P.residual
     np.testing.assert_allclose(T.kd, kd)
+    np.testing.assert_allclose(T.ks, P.ks)
     np.testing.assert_allclose(W, R.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-5, atol=1e-9)
 
 
 @pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])
 def test_furnace_mean_weight_is_albedo(tables, kind):
-    """kd (the Diffuse floor's albedo) plus the mean of W · A over samples (what a white furnace renders,
-    A the closure albedo) equals the directional albedo ∫ eval cos dωi of the table at off-node views.
+    """The floors' albedo (kd + ks E_g, ``floor_albedo``) plus the mean of W · A over samples (what a white furnace
+    renders, A the closure albedo) equals the directional albedo of floors + residual (``closure_albedo``: the
+    residual's ∫ eval cos dωi by quadrature; without a glossy floor, ωi tables: the table's own) at off-node views.
     100k samples; the relative standard error is printed by the estimate itself (< 0.3 %); tolerance
     4 standard errors + 0.3 % for the albedo's midpoint rule."""
     B = tables[kind]
@@ -131,8 +134,11 @@ def test_furnace_mean_weight_is_albedo(tables, kind):
         wi, m, W, p = tb.sample(T, WO, np.random.default_rng(3).random((n, 4)))
         est = W * tb.lobe_albedo(np.sum(WO * m, 1), T.alpha)[:, None]
         se = est.std(0) / np.sqrt(n)
-        ref = B.albedo(wo[None], 128, 256)[0]
-        assert np.all(np.abs(T.kd + est.mean(0) - ref) < 4 * se + 0.003 * ref), (wo, T.kd, est.mean(0), ref, se)
+        ref = tb.closure_albedo(B, wo[None], True, 128, 256)[0]     # floors + the residual's quadrature
+        got = tb.floor_albedo(T, wo[None])[0] + est.mean(0)
+        assert np.all(np.abs(got - ref) < 4 * se + 0.003 * ref), (wo, T.kd, T.ks, est.mean(0), ref, se)
+        if not T.ks.any():          # ωi tables: kd/π + r is the table, so its albedo (half tables: closer to f)
+            assert B.half or np.all(np.abs(got - B.albedo(wo[None], 128, 256)[0]) < 4 * se + 0.003 * ref)
 
 
 @pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])

@@ -175,7 +175,7 @@ def test_graph_weight_is_eval_cos_over_pdf(tables, kind):
         near = np.sum(WO * m, 1) >= np.cos(np.radians(80.0))
         assert near.mean() > 0.9 and np.all(1.0 / A[near] - 1.0 < tb.SVM_ALBEDO_TOL)
         A = np.ones_like(A)
-    R = tb.floor_split(B)[1]            # the graph's Glossy renders the residual r = f - kd/π (Diffuse: the floor)
+    R = tb.floor_parts(B).residual      # the graph's Glossy renders the residual r = f - kd/π - ks g (the floors)
     np.testing.assert_allclose(W, R.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-4, atol=1e-7)
 
 
@@ -194,8 +194,9 @@ def test_graph_furnace_matches_albedo_and_osl_sampler(tables, kind):
         _, m2, W2, _ = tb.sample(T, WO, rng.random((n, 4)))
         est2 = W2 * tb.lobe_albedo(np.sum(WO * m2, 1), T.alpha)[:, None]
         se, se2 = est.std(0) / np.sqrt(n), est2.std(0) / np.sqrt(n)
-        ref = B.albedo(wo[None], 128, 256)[0]
-        assert np.all(np.abs(T.kd + est.mean(0) - ref) < 4 * se + 0.003 * ref), (wo, T.kd, est.mean(0), ref, se)
+        ref = tb.closure_albedo(B, wo[None], True, 128, 256)[0]     # floors + the residual's quadrature
+        got = tb.floor_albedo(T, wo[None])[0] + est.mean(0)
+        assert np.all(np.abs(got - ref) < 4 * se + 0.003 * ref), (wo, T.kd, T.ks, est.mean(0), ref, se)
         assert np.all(np.abs(est.mean(0) - est2.mean(0)) < 4 * np.hypot(se, se2)), (wo, est.mean(0), est2.mean(0))
 
 
