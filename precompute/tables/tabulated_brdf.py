@@ -800,6 +800,52 @@ class FloorParts:
 _FLOOR_CACHE: dict = {}
 
 
+#: the glossy floor search's lobes in one table layout (``_layout_lobes``): an edit of a table (a bi-scale colour,
+#: a re-import) keeps its layout, so the search's 16 grid lobes are evaluated once per layout, not per table
+_LOBES: dict = {"layout": None, "pairs": None, "g": {}}
+_ALBEDO_MEMO: dict = {}
+
+
+def _layout_key(brdf) -> tuple:
+    """What ``_node_pairs`` depends on: the table's layout, not its values."""
+    import hashlib
+    h = hashlib.sha1()
+    for a in (getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)):
+        if a is not None:
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    half = bool(getattr(brdf, "half", False))
+    return (h.hexdigest(), brdf.res, bool(brdf.iso), half, float(getattr(brdf, "extent", 1.0)) if half else 1.0,
+            int(info.get("sub", 4 if half else 1)), len(brdf.view_nodes()))
+
+
+def _layout_lobes(brdf):
+    """``lobe(α, dist)`` -> ``glossy_nodes`` of ``brdf``'s layout, remembered for the last layout only (memory: at
+    most 48 lobes of one layout, 1 MB each for a bi-scale 19² x 19x19 table)."""
+    key = _layout_key(brdf)
+    if _LOBES["layout"] != key:
+        _LOBES.update(layout=key, pairs=_node_pairs(brdf), g={})
+
+    def lobe(a: float, dg: str) -> np.ndarray:
+        if (a, dg) not in _LOBES["g"]:
+            if len(_LOBES["g"]) >= 48:
+                _LOBES["g"].clear()
+            _LOBES["g"][(a, dg)] = glossy_nodes(brdf, a, dg, _LOBES["pairs"])
+        return _LOBES["g"][(a, dg)]
+    return lobe
+
+
+def _glossy_albedo_memo(cos_o, a: float, dg: str) -> np.ndarray:
+    """``glossy_albedo(cos_o, a, dg, 128)``, remembered (the search repeats its α grid for every table)."""
+    cos_o = np.ascontiguousarray(cos_o, np.float64)
+    k = (cos_o.tobytes(), a, dg)
+    if k not in _ALBEDO_MEMO:
+        if len(_ALBEDO_MEMO) >= 256:
+            _ALBEDO_MEMO.clear()
+        _ALBEDO_MEMO[k] = glossy_albedo(cos_o, a, dg, 128)
+    return _ALBEDO_MEMO[k]
+
+
 def _table_key(brdf) -> tuple:
     import hashlib
     h = hashlib.sha1(np.ascontiguousarray(brdf.table, np.float64).tobytes())
@@ -859,7 +905,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     t = table
     mu = np.cos(_AVG_THETA)
     per_view = bool(per_view) and bool(brdf.iso)
-    pairs = _node_pairs(brdf)
+    lobes = _layout_lobes(brdf)
     th_o = theta_nodes(n_o)
     w_o = np.cos(th_o) * np.sin(th_o)
     w_o /= w_o.sum()
@@ -868,12 +914,12 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     def solve(a, dg):
         k = (float(a), dg)
         if k not in memo:
-            g = glossy_nodes(brdf, float(a), dg, pairs)
+            g = lobes(float(a), dg)
             if per_view:                                  # ks per θo node: weights cos θ sin θ of the nodes
-                Eg = glossy_albedo(np.cos(th_o), float(a), dg, 128) * w_o
+                Eg = _glossy_albedo_memo(np.cos(th_o), float(a), dg) * w_o
                 kd, ks = _best_split(t, lam, g, Eg)
             else:
-                Eg = np.array([_hemi_average(glossy_albedo(mu, float(a), dg, 128))])
+                Eg = np.array([_hemi_average(_glossy_albedo_memo(mu, float(a), dg))])
                 kd, ks = _best_split(t.reshape(-1, 1, 3), lam.reshape(-1, 1), g.reshape(-1, 1), Eg)
                 ks = np.repeat(ks, n_o, 0)
             memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, g, Eg)
@@ -946,8 +992,15 @@ def floor_parts(brdf: TabulatedBRDF, floor=True) -> FloorParts:
     """The floors the shader renders for ``floor`` (``floor_mode``): "none" (False): none; "diffuse": the Diffuse
     floor alone (``floor_split``); "glossy": Diffuse + glossy floor (``glossy_floor_split``); "auto" (True, the
     default): the glossy floor when it takes at least ``GLOSSY_SHARE_MIN`` of the table's hemispherical albedo,
-    else the Diffuse floor alone."""
+    else the Diffuse floor alone; no search when the Diffuse floor leaves less than that in the residual (the glossy
+    floor takes its energy off the residual: a Lambertian table, 1.5 s -> 0.1 s for a bi-scale-size one)."""
     mode = floor_mode(floor)
+    if mode == "auto":      # the glossy floor takes energy off the residual: none to take, no search
+        kd, r = floor_split(brdf, True)
+        mu = np.cos(_AVG_THETA)
+        E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
+        if E_f <= 0.0 or 1.0 - float(np.mean(kd)) / E_f < GLOSSY_SHARE_MIN:
+            return FloorParts(kd, np.zeros(3), 0.0, r, "diffuse", 0.0)
     if mode in ("auto", "glossy"):
         parts = glossy_floor_split(brdf, min_share=0.5 * GLOSSY_SHARE_MIN if mode == "auto" else 0.0)
         if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN:

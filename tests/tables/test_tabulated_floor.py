@@ -288,6 +288,51 @@ def test_floor_modes_and_merl_files():
         tb.closure_tables(B, floor="shiny")
 
 
+def test_auto_floor_skips_the_search_when_the_diffuse_floor_leaves_no_residual(monkeypatch):
+    """"auto" searches a glossy floor only when the Diffuse floor leaves >= GLOSSY_SHARE_MIN of the albedo in the
+    residual (the glossy floor can take only that): a Lambertian table gets the Diffuse floor without a search, a
+    GGX + Lambert table still gets its glossy floor."""
+    calls = []
+    real = tb.glossy_floor_split
+    monkeypatch.setattr(tb, "glossy_floor_split", lambda *a, **k: calls.append(1) or real(*a, **k))
+    lam = tb.TabulatedBRDF.from_function(lambda wi, wo: np.full((len(wi), 3), 0.4 / np.pi), 8, iso=True, n_theta=6)
+    parts = tb.floor_parts(lam, "auto")
+    assert parts.mode == "diffuse" and not parts.ks.any() and calls == []
+    np.testing.assert_allclose(parts.kd, 0.4, rtol=1e-6)
+    glossy = tb.TabulatedBRDF.from_function(ggx_plus_lambert(), 10, iso=True, n_theta=8)
+    parts = tb.floor_parts(glossy, "auto")
+    assert calls and parts.mode == "glossy" and parts.share >= tb.GLOSSY_SHARE_MIN
+
+
+def test_glossy_floor_search_remembers_lobes_per_layout_not_per_table():
+    """An edit keeps the table's layout: the search re-uses that layout's lobes (``_layout_lobes``) and finds the
+    same floor as a cold search (caches cleared); a table of another layout (another view grid) does not see the
+    first layout's lobes (its floor equals its own cold search)."""
+    def cold(b):
+        tb._LOBES.update(layout=None, pairs=None, g={})
+        tb._ALBEDO_MEMO.clear()
+        tb._FLOOR_CACHE.clear()
+        return tb.glossy_floor_split(b)
+    a = tb.TabulatedBRDF.from_function(ggx_plus_lambert(), 8, view_a=tb.view_grid_nodes(9, [0.3]),
+                                       view_b=tb.view_grid_nodes(7))
+    edit = tb.TabulatedBRDF.from_function(ggx_plus_lambert(kd=(0.3, 0.1, 0.2), alpha=0.3, ks=0.6), 8,
+                                          view_a=tb.view_grid_nodes(9, [0.3]), view_b=tb.view_grid_nodes(7))
+    other = tb.TabulatedBRDF.from_function(ggx_plus_lambert(kd=(0.3, 0.1, 0.2), alpha=0.3, ks=0.6), 8,
+                                           view_a=tb.view_grid_nodes(9, [0.5]), view_b=tb.view_grid_nodes(7))
+    for b in (edit, other):
+        want = cold(b)
+        cold(a)                                       # caches warm with a's layout only
+        tb._FLOOR_CACHE.clear()
+        n_warm = len(tb._LOBES["g"])
+        got = tb.glossy_floor_split(b)
+        if b is edit:
+            assert len(tb._LOBES["g"]) < n_warm + 16   # the grid's 16 lobes were re-used
+        np.testing.assert_array_equal(got.kd, want.kd)
+        np.testing.assert_array_equal(got.ks, want.ks)
+        assert (got.alpha_g, got.dist_g) == (want.alpha_g, want.dist_g)
+        np.testing.assert_array_equal(got.residual.table, want.residual.table)
+
+
 def test_fill_missing_keeps_measured_bins():
     """``fill_missing`` changes only bins that are <= 0 in every channel, and fills each from the nearest measured
     bin at smaller θd (same θh, φd)."""
