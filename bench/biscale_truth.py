@@ -15,6 +15,10 @@ tiles (ordinary BSDFs) render on SVM too; every baked material is rendered on OS
 (rows "... (OSL)"), the same bake and explicit frames.  Output ``bench/out/biscale_truth_svm.md``.
 
     .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--svm] [--spp 64] [--seeds 2] [--figure]
+        [--views "75/0,80/180"] [--bake-seeds 0,1] [--no-osl] [--tiles "..."] [--tag name]
+
+``--views``: other views (θo/φo degrees); ``--bake-seeds``: several bakes in one run against the same explicit
+frames (rows "table s0", "table s1"); ``--no-osl`` with ``--svm``: SVM rows only (``bench/out/biscale_truth_svm_views.md``).
 """
 from __future__ import annotations
 
