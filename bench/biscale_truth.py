@@ -15,6 +15,10 @@ tiles (ordinary BSDFs) render on SVM too; every baked material is rendered on OS
 (rows "... (OSL)"), the same bake and explicit frames.  Output ``bench/out/biscale_truth_svm.md``.
 
     .venv/bin/python -m bench biscale_truth [--quick] [--fit] [--gi] [--svm] [--spp 64] [--seeds 2] [--figure]
+        [--views "75/0,80/180"] [--bake-seeds 0,1] [--no-osl] [--tiles "..."] [--tag name]
+
+``--views``: other views (θo/φo degrees); ``--bake-seeds``: several bakes in one run against the same explicit
+frames (rows "table s0", "table s1"); ``--no-osl`` with ``--svm``: SVM rows only (``bench/out/biscale_truth_svm_views.md``).
 """
 from __future__ import annotations
 
@@ -152,9 +156,10 @@ def rel_error(ex, bk, se_ex=None, se_bk=None):
     return err, s[np.arange(len(c)), c] / ex.mean(1)
 
 
-def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto", seed=0):
+def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto", seed=0, indirect=True):
     """The baked materials' tables for one tile: the direct (Wu) closure table, the same plus the
     inter-reflected part (``interreflect.tile_indirect``), optionally the closure fits of both.
+    ``indirect=False`` (and no ``fit``): only the direct table (no inter-reflection pass; info None).
     Returns (dict name -> (TabulatedBRDF | ClosureFit, EffectiveBRDF), timings, indirect info)."""
     from scratch_materials.precompute.biscale import interreflect
     from scratch_materials.precompute.biscale import table as btable
@@ -170,6 +175,8 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto"
     table = btable.tabulate_tile(bt, mats, view=view)   # the closure's finer table (direct, eq. 8)
     t_tab = time.perf_counter() - t0
     vg = {"view_a": table.view_a, "view_b": table.view_b} if table.view_a is not None else {}
+    if not indirect and not fit:
+        return {"table": (table, brdf)}, {"effective (dir_res %d)" % dir_res: t_eff, "table": t_tab}, None
     ind, info = interreflect.tile_indirect(bt, mats, True, view=table.view_nodes() if vg else None)
     r = info["res"]
     add = interreflect.resample_wi(ind, r, table.res) if vg else interreflect.resample(ind, r, table.res)
@@ -207,6 +214,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--bake-seed", type=int, default=0, help="seed of the bake (facets, indirect paths)")
     ap.add_argument("--figure", action="store_true", help="only the side-by-side figure (docs/img/biscale_truth.png)")
     ap.add_argument("--svm", action="store_true", help="render on Cycles SVM (the default shading system) instead of OSL")
+    ap.add_argument("--views", default="", help="views 'θo/φo,θo/φo,...' in degrees (default: 0/0,35/0,60/90,60/20)")
+    ap.add_argument("--bake-seeds", default="", help="several bake seeds '0,1' in one run (the explicit frames shared); "
+                                                      "overrides --bake-seed")
+    ap.add_argument("--no-osl", action="store_true", help="with --svm: skip the OSL rows")
     ap.add_argument("--tag", default="", help="suffix of the output name (bench/out/biscale_truth[_svm]_<tag>.md)")
     args = ap.parse_args(argv)
     addon = blender()
@@ -217,20 +228,32 @@ def main(argv: list[str]) -> int:
     if args.figure:
         return figure(args.spp)
     views = VIEWS[:2] if args.quick else VIEWS
+    if args.views:
+        views = [tuple(float(x) for x in v.split("/")) for v in args.views.split(",")]
+        if any(len(v) != 2 or not 0 <= v[0] < 90 for v in views):
+            raise ValueError(f"--views: expected 'θo/φo,...' with 0 <= θo < 90 (degrees), got {args.views!r}")
+    bake_seeds = [int(x) for x in args.bake_seeds.split(",")] if args.bake_seeds else [args.bake_seed]
     n = 100
     rows = []
     for name in args.tiles.split(","):
         factory, kw, mats = TILES[name]
         tile = getattr(geometry, factory)(**kw)
-        variants, times, info = bake_variants(tile, mats, n_facets=2000 if args.quick else 10000, fit=args.fit,
-                                              seed=args.bake_seed)
-        bake_s = " / ".join(f"{k} {v:.1f}" for k, v in times.items())
+        variants, bake_s = {}, []
+        for bs in bake_seeds:
+            var, times, info = bake_variants(tile, mats, n_facets=2000 if args.quick else 10000, fit=args.fit,
+                                             seed=bs, indirect=args.gi)
+            variants.update({(k if len(bake_seeds) == 1 else f"{k} s{bs}"): v for k, v in var.items()})
+            bake_s.append(" / ".join(f"{k} {v:.1f}" for k, v in times.items()))
+            if var["table"][0].view_a is not None:
+                print(name, "bake seed", bs, "view nodes a (deg)", np.round(np.degrees(var["table"][0].view_a), 2).tolist(),
+                      "b", np.round(np.degrees(var["table"][0].view_b), 2).tolist(), flush=True)
+        bake_s = " ; ".join(bake_s)
         for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
             use = [k for k in variants if bounces or "inter-refl." not in k]
             mats_bl = {k: _material(f"{name} {k}", *variants[k]) for k in use}
             osl = True
             if args.svm:        # each baked material on SVM and on OSL; the explicit tiles on SVM
-                mats_bl = {f"{k} ({p})": m for k, m in mats_bl.items() for p in ("SVM", "OSL")}
+                mats_bl = {f"{k} ({p})": m for k, m in mats_bl.items() for p in (("SVM",) if args.no_osl else ("SVM", "OSL"))}
                 osl = {"explicit": False, **{k: k.endswith("(OSL)") for k in mats_bl}}
                 use = list(mats_bl)
             ex, bk, secs, se = render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=args.spp,
@@ -243,11 +266,12 @@ def main(argv: list[str]) -> int:
                                  f"{100 * e:.1f} %", f"{100 * sg:.2f} %", np.round(a, 4).tolist(),
                                  np.round(b, 4).tolist(), bake_s])
                     print(rows[-1], flush=True)
-        print(name, "indirect estimate", info["estimate"], flush=True)
+        if info is not None:
+            print(name, "indirect estimate", info["estimate"], flush=True)
     report(("biscale_truth_svm" if args.svm else "biscale_truth") + (f"_{args.tag}" if args.tag else ""), ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
-           notes=f"shading system {'SVM (explicit tiles and the rows (SVM): the baked table through its node graph; rows (OSL): the same material on OSL in the same run)' if args.svm else 'OSL'}; "
-                 f"bake seed {args.bake_seed}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
+           notes=f"views {' '.join(f'{a:g}/{b:g}' for a, b in views)}; shading system {'SVM (explicit tiles and the rows (SVM): the baked table through its node graph; rows (OSL): the same material on OSL in the same run)' if args.svm else 'OSL'}; "
+                 f"bake seed(s) {','.join(map(str, bake_seeds))}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
                  f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
                  f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
                  "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "
