@@ -32,19 +32,7 @@ def file_albedo(table, wo, n_theta: int = 90, n_phi: int = 180) -> np.ndarray:
     warping θh = x² π/2 (``n_theta`` = 90: one point per θh bin, dense at the peak) x ``n_phi`` φh, with
     ωi = reflect(ωo, h), dωi = 4 |h·ωo| dωh.  Measured on a GGX α 0.05 file against 1500 x 360 points: within
     0.14 % at θo 0 / 45 / 70° (a uniform 192² h grid of twice the cost: 0.3-0.6 %).  Dimensionless."""
-    x = (np.arange(n_theta) + 0.5) / n_theta
-    th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n_theta
-    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
-    TH, PH = np.meshgrid(th, ph, indexing="ij")
-    h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
-    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
-    out = []
-    for w in np.atleast_2d(np.asarray(wo, np.float64)):
-        W = np.broadcast_to(w, h.shape)
-        wi, ok = tabulated_brdf.reflect(W, h)
-        f = merl.lookup(table, np.where(ok[:, None], wi, [0.0, 0.0, 1.0]), W)
-        out.append((f * (ok * wi[:, 2] * 4.0 * np.abs(h @ w) * dwh)[:, None]).sum(0))
-    return np.array(out)
+    return merl.half_vector_albedo(lambda wi, wo_: merl.lookup(table, wi, wo_), wo, n_theta, n_phi)
 
 
 def energy_check(table, brdf, floor=True) -> dict:

@@ -45,18 +45,7 @@ def _mod(addon, name):
 def reference_albedo(f, wo, n=1200, n_phi=360):
     """∫ f cos θi dωi of the analytic BRDF (not the file) by the midpoint rule over the half vector (θh = x² π/2,
     dense at the peak; dωi = 4 |ωo·h| dωh; tests/tables/test_merl.py: converged to < 0.1 % for GGX α >= 0.02)."""
-    x = (np.arange(n) + 0.5) / n
-    th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n
-    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
-    TH, PH = np.meshgrid(th, ph, indexing="ij")
-    h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
-    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
-    out = []
-    for w in wo:
-        wi, ok = tb.reflect(np.broadcast_to(w, h.shape), h)
-        v = f(np.where(ok[:, None], wi, [0, 0, 1.0]), np.broadcast_to(w, h.shape))
-        out.append((v * (ok * wi[:, 2] * 4 * np.abs(h @ w) * dwh)[:, None]).sum(0))
-    return np.array(out)
+    return merl.half_vector_albedo(f, wo, n, n_phi)
 
 
 @pytest.fixture

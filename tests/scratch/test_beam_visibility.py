@@ -81,6 +81,20 @@ PROFILES = {
 }
 
 
+def _method_case(name, method, monkeypatch):
+    """Profile ``name``'s periodic vertices, 26 incidence angles and a coloured conductor, with visibility method
+    ``method`` forced ("scan", "hierarchy", "hierarchy+tail": the last searching beams finish by one scan from 3
+    beams on, "tail-only": by one scan from the start); returns (verts, phi, F, scan_tail)."""
+    verts = PROFILES[name].periodic_vertices()
+    phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
+    F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
+    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 10**9 if method == "scan" else 0)
+    tail = "tail" in method
+    if tail:
+        monkeypatch.setattr(beam, "_TAIL_ELEMS", 3 * (verts.shape[0] - 1) if method == "hierarchy+tail" else 10**9)
+    return verts, phi, F, tail
+
+
 @pytest.mark.parametrize("method", ["hierarchy", "scan", "hierarchy+tail", "tail-only"])
 @pytest.mark.parametrize("name", sorted(PROFILES))
 def test_visibility_equals_brute_force(name, method, monkeypatch):
@@ -88,14 +102,7 @@ def test_visibility_equals_brute_force(name, method, monkeypatch):
     segments, the bucket scan for smaller ones; each forced here on every profile) give brute force's records;
     so does the hierarchy whose last searching beams finish by one scan (``scan_tail``: from 3 beams on, or
     from the start)."""
-    verts = PROFILES[name].periodic_vertices()
-    phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
-    F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
-    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 10**9 if method == "scan" else 0)
-    tail = "tail" in method
-    if tail:
-        P = verts.shape[0] - 1
-        monkeypatch.setattr(beam, "_TAIL_ELEMS", 3 * P if method == "hierarchy+tail" else 10**9)
+    verts, phi, F, tail = _method_case(name, method, monkeypatch)
     fast = _canon(beam.trace_exact(verts, phi, F, (1.0, 0.5), scan_tail=tail))
     monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 0)
     monkeypatch.setattr(beam, "_visibility", brute_visibility)
@@ -124,13 +131,7 @@ def test_trace_without_beam_edges_equals_the_full_trace(name, method, monkeypatc
     """``trace_exact(bounds=False)`` (what the view slices trace: no unfolding maps, no edge points) gives the
     full trace's records bit for bit, in the same order, on every visibility method and in small batches;
     only ``flux_ab`` and ``bounds`` are left out."""
-    verts = PROFILES[name].periodic_vertices()
-    phi = np.concatenate([np.linspace(-1.5707, 1.5707, 23), [0.0, 0.3, -0.7853981633974483]])
-    F = fresnel.conductor([0.2, 0.9, 1.1], [3.0, 2.5, 2.0])
-    monkeypatch.setattr(beam, "_HIERARCHY_MIN_SEGMENTS", 10**9 if method == "scan" else 0)
-    tail = "tail" in method
-    if tail:
-        monkeypatch.setattr(beam, "_TAIL_ELEMS", 3 * (verts.shape[0] - 1))
+    verts, phi, F, tail = _method_case(name, method, monkeypatch)
     for batch in (None, 5):
         if batch:   # (batches change the records' order: compared with a full trace in the same batches)
             monkeypatch.setattr(beam, "_VIS_BEAMS", batch)

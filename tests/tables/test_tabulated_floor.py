@@ -361,11 +361,16 @@ def _point_light_scene(addon, sc):
     return sphere
 
 
-def _broken_osl(tm, bpy, brdf, name):
-    """The OSL material with its floor counted twice (KD doubled in the generated source)."""
+def _broken_osl(tm, bpy, brdf, name, glossy=False):
+    """The OSL material with its floor counted twice: KD_* doubled in the generated source (``glossy``: both floors,
+    KD_*, KS_* and the KSV table)."""
     gen = importlib.import_module(tm.__name__.rsplit(".", 2)[0] + ".osl.tabulated_brdf")
-    src = re.sub(r"#define KD_([RGB]) (\S+)", lambda m: f"#define KD_{m.group(1)} {2 * float(m.group(2)):.9g}",
-                 gen.generate(brdf))
+    floors = "DS" if glossy else "D"
+    src = re.sub(rf"#define K([{floors}])_([RGB]) (\S+)",
+                 lambda m: f"#define K{m.group(1)}_{m.group(2)} {2 * float(m.group(3)):.9g}", gen.generate(brdf))
+    if glossy:
+        src = re.sub(r"(float KSV\[\d+\] = \{)([^}]*)\}", lambda m: m.group(1) + ", ".join(
+            f"{2 * float(v):.9g}" for v in m.group(2).replace("\n", " ").split(",")) + "}", src)
     mat = bpy.data.materials.new(name)
     tree = mat.node_tree
     out = tree.nodes.get("Material Output") or tree.nodes.new("ShaderNodeOutputMaterial")
@@ -441,24 +446,6 @@ def test_lambert_merl_under_a_point_light_is_as_quiet_as_diffuse(addon, scene, r
     assert abs(twice / want - 1) > 0.5
 
 
-def _broken_glossy_osl(tm, bpy, brdf, name):
-    """The OSL material with both floors counted twice (KD_*, KS_* and the KSV table doubled in the source)."""
-    gen = importlib.import_module(tm.__name__.rsplit(".", 2)[0] + ".osl.tabulated_brdf")
-    src = re.sub(r"#define K([DS])_([RGB]) (\S+)", lambda m: f"#define K{m.group(1)}_{m.group(2)} "
-                 f"{2 * float(m.group(3)):.9g}", gen.generate(brdf))
-    src = re.sub(r"(float KSV\[\d+\] = \{)([^}]*)\}", lambda m: m.group(1) + ", ".join(
-        f"{2 * float(v):.9g}" for v in m.group(2).replace("\n", " ").split(",")) + "}", src)
-    mat = bpy.data.materials.new(name)
-    tree = mat.node_tree
-    out = tree.nodes.get("Material Output") or tree.nodes.new("ShaderNodeOutputMaterial")
-    for n in list(tree.nodes):
-        if n != out:
-            tree.nodes.remove(n)
-    tree.links.new(tm.tabulated_script(mat, src), out.inputs["Surface"])
-    mat.cycles.use_bump_map_correction = False
-    return mat
-
-
 @pytest.mark.bpy
 @pytest.mark.render
 @pytest.mark.parametrize("osl", [False, True], ids=["svm", "osl"])
@@ -516,7 +503,7 @@ def test_glossy_merl_under_a_point_light(addon, scene, render_dir, osl, capsys):
     got, old = renders(mat), renders(diffuse)
     brdf = ops.merl.to_tabulated(ops.merl.read_merl(path), 16, 16)        # the add-on's own modules
     if osl:
-        broken = _broken_glossy_osl(tm, bpy, brdf, "twice")
+        broken = _broken_osl(tm, bpy, brdf, "twice", glossy=True)
     else:
         broken = mat.copy()
         gn = next(n for n in broken.node_tree.nodes if n.type == "GROUP" and n.node_tree
