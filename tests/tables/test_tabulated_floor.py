@@ -361,6 +361,17 @@ def _point_light_scene(addon, sc):
     return sphere
 
 
+def _seed_renders(sc, sphere, r, render_dir, m, spp, seeds) -> np.ndarray:
+    """Images (seeds, H, W, C) float64 of ``sphere`` with material ``m`` at ``spp``, one per seed."""
+    sphere.data.materials[0] = m
+    out = []
+    for s in seeds:
+        sc.cycles.samples, sc.cycles.seed = spp, s
+        img, _ = r.render_array(sc, str(render_dir), name=f"{m.name}_{s}")
+        out.append(img.astype(np.float64))
+    return np.array(out)
+
+
 def _broken_osl(tm, bpy, brdf, name, glossy=False):
     """The OSL material with its floor counted twice: KD_* doubled in the generated source (``glossy``: both floors,
     KD_*, KS_* and the KSV table)."""
@@ -415,13 +426,7 @@ def test_lambert_merl_under_a_point_light_is_as_quiet_as_diffuse(addon, scene, r
     sphere.data.materials.append(mat)
 
     def means(m, spp=8, seeds=range(4)):
-        sphere.data.materials[0] = m
-        out = []
-        for s in seeds:
-            sc.cycles.samples, sc.cycles.seed = spp, s
-            img, _ = r.render_array(sc, str(render_dir), name=f"{m.name}_{s}")
-            out.append(img.mean())
-        return np.array(out)
+        return _seed_renders(sc, sphere, r, render_dir, m, spp, seeds).mean(axis=tuple(range(1, 4)))
 
     want = means(ref, 64, [0])[0]
     diff8 = means(ref)
@@ -487,13 +492,7 @@ def test_glossy_merl_under_a_point_light(addon, scene, render_dir, osl, capsys):
     sphere.data.materials.append(mat)
 
     def renders(m, spp=8, seeds=range(4)):
-        sphere.data.materials[0] = m
-        out = []
-        for s in seeds:
-            sc.cycles.samples, sc.cycles.seed = spp, s
-            img, _ = r.render_array(sc, str(render_dir), name=f"{m.name}_{s}")
-            out.append(img.astype(np.float64))
-        return np.array(out)
+        return _seed_renders(sc, sphere, r, render_dir, m, spp, seeds)
 
     def pixel_noise(imgs):
         d = imgs[0::2] - imgs[1::2]
