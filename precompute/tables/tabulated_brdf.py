@@ -696,6 +696,22 @@ def _hemi_average(E) -> float:
     return float(np.sum(np.asarray(E) * _AVG_W))
 
 
+_HEMI_ALBEDO: dict = {}
+
+
+def _hemi_albedo(brdf: TabulatedBRDF) -> float:
+    """The table's hemispherical albedo (grey: mean of RGB), ``_hemi_average`` of ``TabulatedBRDF.albedo`` at
+    ``_AVG_THETA``; remembered per table content (``_table_key``: ``floor_parts`` and the search both need it)."""
+    key = _table_key(brdf)
+    if key not in _HEMI_ALBEDO:
+        if len(_HEMI_ALBEDO) >= 64:
+            _HEMI_ALBEDO.clear()
+        mu = np.cos(_AVG_THETA)
+        _HEMI_ALBEDO[key] = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1),
+                                                              48, 96), 1))
+    return _HEMI_ALBEDO[key]
+
+
 def _node_pairs(brdf: TabulatedBRDF):
     """The (ωi, ωo) pairs ``from_function`` evaluates to build ``brdf``'s nodes, for evaluating other BRDFs in its
     layout at once: (wi (n_o, P, 3), wo (n_o, 1, 3), weight (n_o, P) (half tables: ok cos θi cos θo J, else 1),
@@ -924,7 +940,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                 ks = np.repeat(ks, n_o, 0)
             memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, g, Eg)
         return memo[k]
-    E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
+    E_f = _hemi_albedo(brdf)
     dists = FLOOR_DISTS if dist is None else (dist,)
     if alpha is not None:
         for dg in dists:
@@ -995,19 +1011,17 @@ def floor_parts(brdf: TabulatedBRDF, floor=True) -> FloorParts:
     else the Diffuse floor alone; no search when the Diffuse floor leaves less than that in the residual (the glossy
     floor takes its energy off the residual: a Lambertian table, 1.5 s -> 0.1 s for a bi-scale-size one)."""
     mode = floor_mode(floor)
+    if mode in ("diffuse", "none"):
+        kd, r = floor_split(brdf, mode == "diffuse")
+        return FloorParts(kd, np.zeros(3), 0.0, r, mode, 0.0)
     if mode == "auto":      # the glossy floor takes energy off the residual: none to take, no search
         kd, r = floor_split(brdf, True)
-        mu = np.cos(_AVG_THETA)
-        E_f = _hemi_average(np.mean(brdf.albedo(np.stack([np.sin(_AVG_THETA), 0 * mu, mu], -1), 48, 96), 1))
+        diffuse = FloorParts(kd, np.zeros(3), 0.0, r, "diffuse", 0.0)
+        E_f = _hemi_albedo(brdf)
         if E_f <= 0.0 or 1.0 - float(np.mean(kd)) / E_f < GLOSSY_SHARE_MIN:
-            return FloorParts(kd, np.zeros(3), 0.0, r, "diffuse", 0.0)
-    if mode in ("auto", "glossy"):
-        parts = glossy_floor_split(brdf, min_share=0.5 * GLOSSY_SHARE_MIN if mode == "auto" else 0.0)
-        if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN:
-            return parts
-        mode = "diffuse"
-    kd, r = floor_split(brdf, mode == "diffuse")
-    return FloorParts(kd, np.zeros(3), 0.0, r, mode, 0.0)
+            return diffuse
+    parts = glossy_floor_split(brdf, min_share=0.5 * GLOSSY_SHARE_MIN if mode == "auto" else 0.0)
+    return parts if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN else diffuse
 
 
 def floor_eval(parts: FloorParts, wi, wo) -> np.ndarray:
