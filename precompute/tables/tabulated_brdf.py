@@ -908,6 +908,8 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     vg = {} if va is None else {"view_a": va, "view_b": vb}
     if dist is not None and dist not in FLOOR_DISTS:
         raise ValueError(f"dist: expected one of {FLOOR_DISTS}, got {dist!r}")
+    n_grid = validation.check_int("n_grid", n_grid, 1, 64)
+    min_share = validation.check_range("min_share", min_share, 0.0, 1.0)
 
     def residual(t):
         return TabulatedBRDF(np.maximum(t, 0.0), brdf.res, bool(brdf.iso), dict(getattr(brdf, "info", {}) or {}),

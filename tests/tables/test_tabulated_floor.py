@@ -288,6 +288,14 @@ def test_floor_modes_and_merl_files():
         tb.closure_tables(B, floor="shiny")
 
 
+@pytest.mark.parametrize("kw, name", [(dict(n_grid=0), "n_grid"), (dict(n_grid=2.5), "n_grid"),
+                                      (dict(min_share=1.5), "min_share"), (dict(min_share=float("nan")), "min_share"),
+                                      (dict(dist="phong"), "dist"), (dict(alpha=0.0), "alpha_g")])
+def test_glossy_floor_split_rejects_bad_parameters_by_name(tables, kw, name):
+    with pytest.raises(ValueError, match=name):
+        tb.glossy_floor_split(tables["iso"], **kw)
+
+
 def test_auto_floor_skips_the_search_when_the_diffuse_floor_leaves_no_residual(monkeypatch):
     """"auto" searches a glossy floor only when the Diffuse floor leaves >= GLOSSY_SHARE_MIN of the albedo in the
     residual (the glossy floor can take only that): a Lambertian table gets the Diffuse floor without a search, a
