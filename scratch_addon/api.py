@@ -61,7 +61,7 @@ def make_scratched_material(preset: str | None = None, *, name: str | None = Non
                   "principled", or a dict ``{"type": ..., "color": ..., "roughness": ...}``
       layers      None (dense scratches everywhere), a layer count, a dict of
                   ``precompute.scratch.layers.LayerParams`` fields (n_layers, theta_deg, length,
-                  width, density, seed; lengths in UV units) or a LayerParams
+                  width, density, seed; length and width in UV units, in [1e-9, 1e9]) or a LayerParams
       lobes       K, at most this many fitted tilted GGX lobes per φo slice (1..16, default 8;
                   lobe_shape "fit"/"box" and the SVM backend)
       lobe_shape  "table" (default: tabulated-tilt lobes, ``precompute.scratch.lobe_table``: the slice sampled

@@ -20,7 +20,7 @@ import json
 import bpy
 import numpy as np
 
-from ..precompute.scratch import fresnel as _fresnel, material as _material, profiles
+from ..precompute.scratch import fresnel as _fresnel, layers as _layers, material as _material, profiles
 from . import compat, live
 
 #: the profile / Fresnel given by a script that the panel cannot express (``from_spec``)
@@ -89,8 +89,14 @@ class ScratchMaterialSettings(bpy.types.PropertyGroup):
                                        description="Off: scratches everywhere (densely brushed)")
     n_layers: bpy.props.IntProperty(update=_live("n_layers"), name="Layers", default=4, min=1, max=64)
     theta_deg: bpy.props.FloatProperty(update=_live("theta_deg"), name="Orientation Spread", default=7.0, min=0.0, max=360.0)
-    length: bpy.props.FloatProperty(update=_live("length"), name="Length", default=0.2, min=1e-6, precision=5, description="Mean scratch length (UV units)")
-    width: bpy.props.FloatProperty(update=_live("width"), name="Width", default=2e-4, min=1e-7, precision=6, description="Mean scratch width (UV units)")
+    # hard limits = what the API accepts (``layers.SIZE_RANGE``), so an API build shows and keeps its values;
+    # the soft limits are the drag range
+    length: bpy.props.FloatProperty(update=_live("length"), name="Length", default=0.2, min=_layers.SIZE_RANGE[0],
+                                    max=_layers.SIZE_RANGE[1], soft_min=1e-6, soft_max=10.0, precision=5,
+                                    description="Mean scratch length (UV units)")
+    width: bpy.props.FloatProperty(update=_live("width"), name="Width", default=2e-4, min=_layers.SIZE_RANGE[0],
+                                   max=_layers.SIZE_RANGE[1], soft_min=1e-7, soft_max=1.0, precision=6,
+                                   description="Mean scratch width (UV units)")
     density: bpy.props.FloatProperty(update=_live("density"), name="Density", default=0.6, min=0.0, max=1.0)
     seed: bpy.props.IntProperty(update=_live("seed"), name="Seed", default=0)
     base_type: bpy.props.EnumProperty(update=_live("base_type"), name="Base", items=BASE_ITEMS, default="mirror")

@@ -28,6 +28,10 @@ __all__ = ["LayerParams", "layer_transforms", "mean_coverage", "COVERAGE_D", "co
            "merged_layers", "voronoi_f1", "layer_indicator", "coverage_ratio", "coverage_lookup", "union_alpha",
            "far_alpha", "footprint_alpha", "FAR_SPREAD", "ALPHA_CULL"]
 
+#: Allowed scratch length / width in UV units: far inside float32 (the shaders' constants and the panel's
+#: settings hold every accepted value exactly enough to rebuild the same material).
+SIZE_RANGE = (1e-9, 1e9)
+
 #: Density grid of the tabulated mean coverage (F1 of a 3x3-searched unit jittered grid is < 1.5).
 COVERAGE_D = np.linspace(0.0, 1.5, 61)
 
@@ -37,7 +41,8 @@ class LayerParams:
     """Distribution parameters of one material's scratch layers (the paper's Table 1 columns).
 
     n_layers: N >= 1; theta_deg: orientation spread Θ in degrees [0, 360];
-    length l and width w: mean scratch length/width in UV units (> 0, w <= l);
+    length l and width w: mean scratch length/width in UV units, in [1e-9, 1e9] (``SIZE_RANGE``: what a
+    float32 shader constant and the panel hold), w <= l;
     density d in [0, 1]; seed: any integer.
     """
 
@@ -58,10 +63,11 @@ class LayerParams:
             v = getattr(self, name)
             if not isinstance(v, (int, float, np.floating, np.integer)) or not (lo <= float(v) <= hi):
                 bad(name, f"in [{lo:g}, {hi:g}]", v)
+        lo, hi = SIZE_RANGE
         for name in ("length", "width"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or not (0.0 < float(v) < math.inf):
-                bad(name, "a positive finite number (UV units)", v)
+            if not isinstance(v, (int, float, np.floating, np.integer)) or not (lo <= float(v) <= hi):
+                bad(name, f"in [{lo:g}, {hi:g}] (UV units)", v)
         if self.width > self.length:
             bad("width", f"<= length ({self.length:g}): scratches are stretched along u", self.width)
         if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool):

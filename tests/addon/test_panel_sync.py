@@ -199,3 +199,35 @@ def test_a_file_profile_stays_a_file_profile_and_is_read_once_per_rebuild(addon,
     assert len(reads) == 1, reads
     mat.scratch.n_layers = 2                                       # a rebuild: the file unchanged, not read again
     assert mat.scratch.profile_type == "file" and len(reads) == 1
+
+
+#: the ends of the accepted scratch sizes (``layers.SIZE_RANGE``): the panel used to clamp length to >= 1e-6 and
+#: width to >= 1e-7, so the first panel edit after such an API build silently rebuilt other scratches; a length
+#: of 1e39 (accepted then) broke the OSL build with a KeyError
+EXTREME_SIZES = [dict(length=1e-9, width=1e-9), dict(length=1e9, width=1e-9), dict(length=1e9, width=1e9),
+                 dict(length=5e-7, width=5e-8)]
+
+
+@pytest.mark.parametrize("sizes", EXTREME_SIZES, ids=lambda s: f"l{s['length']:g}-w{s['width']:g}")
+def test_extreme_scratch_sizes_survive_panel_edits_and_render(addon, scene, render_dir, sizes):
+    layers = dict(PARAMS["layers"], **sizes)
+    params = dict(PARAMS, layers=layers, diffuse=None, base="mirror")
+    mat = addon.api.make_scratched_material(name="api", **params)
+    assert (mat.scratch.to_params()["layers"]["length"], mat.scratch.to_params()["layers"]["width"]) == \
+        (sizes["length"], sizes["width"])
+    mat.scratch.n_layers = 2                                       # a rebuild from the panel keeps the sizes
+    assert json.loads(mat["scratch_addon_params"])["layers"] == dict(layers, n_layers=2)
+    addon.render.add_plane(scene, size=2.0, material=mat)
+    addon.render.add_camera(scene, location=(0, -1.5, 1.5), target=(0, 0, 0), ortho_scale=1.0)
+    addon.render.uniform_world(scene, color=(0.8, 0.8, 0.8))
+    for osl in (False, True):
+        addon.render.configure_cycles(scene, samples=2, res=(8, 8), seed=0, osl=osl)
+        img, _ = addon.render.render_array(scene, str(render_dir), f"x{int(osl)}")
+        assert np.isfinite(img).all() and img[..., :3].mean() > 0.05, (osl, img[..., :3].mean())
+
+
+@pytest.mark.parametrize("key, value", [("length", 2e9), ("width", 5e-10), ("length", 1e39), ("width", 0.0)])
+def test_scratch_sizes_out_of_range_are_rejected_by_name(addon, scene, key, value):
+    layers = dict(PARAMS["layers"], **{key: value})
+    with pytest.raises(ValueError, match=rf"{key} must be in \[1e-09, 1e\+09\]"):
+        addon.api.make_scratched_material(name="bad", **dict(PARAMS, layers=layers))
