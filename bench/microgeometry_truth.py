@@ -30,6 +30,10 @@ VIEWS = [(0.0, 0.0), (45.0, 0.0), (45.0, 90.0), (70.0, 0.0), (70.0, 90.0)]
 #: period), filtered with sigma 1 µm: rms slopes 0.031 x 0.072 (exit-direction spread ≈ 0.004 / 0.020 at
 #: normal view, the issue's surface).
 SURFACE = dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.2, corr_um=(8.0, 3.0), seed=3)
+#: Other surfaces for an independent check (``--surface``): an isotropic one and a rougher brushed one.
+SURFACES = {"brushed": SURFACE,
+            "iso": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.15, corr_um=(4.0, 4.0), seed=11),
+            "rough": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.3, corr_um=(6.0, 2.0), seed=5)}
 SIGMA_UM = 1.0
 PERIODS = 101          # tile periods across the frame (coprime with the pixel counts used)
 PERIOD_M = 0.01        # one tile in metres
@@ -40,11 +44,11 @@ def view_vector(theta: float, phi: float) -> np.ndarray:
     return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
 
 
-def surface():
-    """(HeightField, smoothed heights µm) of ``SURFACE``."""
+def surface(s=None):
+    """(HeightField, smoothed heights µm) of ``s`` (default ``SURFACE``)."""
     from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface, smoothed_heights
 
-    s = SURFACE
+    s = s or SURFACE
     hf = gaussian_surface(s["shape"], s["pixel_um"], s["rms_height_um"], s["corr_um"], seed=s["seed"])
     return hf, smoothed_heights(hf.heights, hf.pixel_um, SIGMA_UM)
 
@@ -59,7 +63,8 @@ def _camera(addon, scene, wo, frame):
 
 def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=64, tmp=None, images=None):
     """{view: (albedo, E[dx²], E[dy²], E[dz²])} of the exit direction for ``kind`` in ("explicit",
-    "table", "ellipsoid"); seconds of rendering.  ``materials``: {kind: () -> material} for the material kinds
+    "table", "table_svm", "ellipsoid"; "table_svm": the table material on Cycles SVM, the default shading
+    system); seconds of rendering.  ``materials``: {kind: () -> material} for the material kinds
     (called after the scene reset, which removes unused datablocks).  ``addon``: the glue package."""
     render, biscale_truth, microgeometry_truth = addon.render, addon.biscale_truth, addon.microgeometry_truth
     tmp = tmp or tempfile.mkdtemp()
@@ -72,7 +77,7 @@ def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=1
         n = int(math.ceil(frame / cmax / PERIOD_M)) + 4
         microgeometry_truth.heightfield_tiles(scene, smooth, hf.pixel_um, n, n, PERIOD_M)
     else:
-        render.add_plane(scene, size=frame / cmax * 1.2, material=materials[kind]())
+        render.add_plane(scene, size=frame / cmax * 1.2, material=materials[kind.replace("_svm", "")]())
     for v in views:
         wo = view_vector(*v)
         _camera(addon, scene, wo, frame)
@@ -121,12 +126,19 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--figure", action="store_true")
+    ap.add_argument("--surface", choices=sorted(SURFACES), default="brushed")
+    ap.add_argument("--views", default="", help='"θ/φ,θ/φ,..." degrees (default: VIEWS)')
+    ap.add_argument("--table-svm", action="store_true", help="also the table material on Cycles SVM")
+    ap.add_argument("--tag", default="", help="suffix of the output name")
     args = ap.parse_args(argv)
     views = VIEWS[:1] + VIEWS[3:4] if args.quick else VIEWS
+    if args.views:
+        views = [tuple(float(x) for x in v.split("/")) for v in args.views.split(",")]
+    kinds = ("explicit", "table") + (("table_svm",) if args.table_svm else ()) + ("ellipsoid",)
     if args.quick:
         args.spp, args.res = 8, 32
     tmp = tempfile.mkdtemp()
-    hf, smooth = surface()
+    hf, smooth = surface(SURFACES[args.surface])
     addon = blender(register=True)
     import importlib
 
@@ -135,7 +147,7 @@ def main(argv: list[str]) -> int:
     mats, t_build = build_materials(addon, hf, tmp)
     res, secs = {}, {}
     images = {} if args.figure else None
-    for kind in ("explicit", "table", "ellipsoid"):
+    for kind in kinds:
         res[kind], secs[kind] = moments(addon, kind, views, hf, smooth, mats, args.spp, args.res, tmp, images)
         for v in views:
             print(kind, v, np.round(res[kind][v], 4), flush=True)
@@ -143,18 +155,19 @@ def main(argv: list[str]) -> int:
     for v in views:
         e = res["explicit"][v]
         row = [f"{v[0]:.0f}/{v[1]:.0f}", f"{e[1]:.4f} / {e[2]:.4f}"]
-        for kind in ("table", "ellipsoid"):
+        for kind in kinds[1:]:
             m = res[kind][v]
             row += [f"{m[1]:.4f} / {m[2]:.4f}", f"{max(abs(m[1] - e[1]), abs(m[2] - e[2])):.4f}"]
-        row += [f"{e[0]:.3f}", f"{res['table'][v][0]:.3f}", f"{res['ellipsoid'][v][0]:.3f}"]
+        row += [f"{res[k][v][0]:.3f}" for k in kinds]
         rows.append(row)
     load = os.getloadavg()
-    report("microgeometry_truth",
-           ["view θo/φo", "explicit E[dx²] / E[dy²]", "table", "table max |Δ|", "ellipsoid", "ellipsoid max |Δ|",
-            "albedo explicit", "albedo table", "albedo ellipsoid"], rows,
-           notes=f"explicit: the smoothed height field (sigma {SIGMA_UM} µm; {SURFACE}) as a flat-shaded mirror, "
+    name = "microgeometry_truth" + (f"_{args.tag}" if args.tag else "")
+    report(name, ["view θo/φo", "explicit E[dx²] / E[dy²]"]
+           + [c for k in kinds[1:] for c in (k.replace("_svm", " (SVM)"), f"{k.replace('_svm', ' (SVM)')} max |Δ|")]
+           + [f"albedo {k.replace('_svm', ' (SVM)')}" for k in kinds], rows,
+           notes=f"explicit: the smoothed height field (sigma {SIGMA_UM} µm; {SURFACES[args.surface]}) as a flat-shaded mirror, "
                  f"{PERIODS} periods across a {args.res}² frame, glossy bounces 16; materials: Material from Height "
-                 f"Field (filtered NDF, same sigma, colour 1) on a plane, table on Cycles OSL, ellipsoid on SVM; "
+                 f"Field (filtered NDF, same sigma, colour 1) on a plane, table on Cycles OSL (and SVM: table (SVM)), ellipsoid on SVM; "
                  f"{args.spp} spp; second moments of the exit direction from the d² world over the white world. "
                  f"Table material built in {t_build.get('table', 0):.1f} s (NDF tables cached). Render s: "
                  + ", ".join(f"{k} {s:.0f}" for k, s in secs.items()) + f"; load {load[0]:.1f} on 2 cores")

@@ -29,8 +29,9 @@ from .ui_utils import USER_ERRORS, assign_material, poll_active_mesh, progress, 
 
 #: How the average material renders the measured NDF (operator enum items).
 NDF_MODELS = {"ELLIPSOID": ("Ellipsoid Fit", "One anisotropic Glossy lobe fitted to the NDF (§8); SVM, GPU, EEVEE"),
-              "TABLE": ("Table", "The measured NDF itself as a tabulated microfacet BRDF (Cycles OSL, light "
-                                 "sampling); the Glossy fit elsewhere")}
+              "TABLE": ("Table", "The measured NDF itself as a tabulated microfacet BRDF with light sampling "
+                                 "(Cycles OSL and SVM, GPU, EEVEE); the ellipsoid lobe only where the table "
+                                 "does not fit the node-group images")}
 
 
 def _finish_material(mat, kind: str) -> None:
@@ -119,8 +120,8 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
 
     ``ndf_model`` (average NDF only): ``"ELLIPSOID"`` the §8 ellipsoid fit as one Glossy lobe (SVM, GPU,
     EEVEE), ``"TABLE"`` the measured NDF itself as a tabulated microfacet BRDF (issue 16:
-    ``tabulated_material.make_ndf_material``; OSL closure with light sampling, its Diffuse + Glossy fit
-    elsewhere: the ellipsoid lobe).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
+    ``tabulated_material.make_ndf_material``: the OSL closure with light sampling, its node-group table on
+    SVM / GPU / EEVEE; the ellipsoid lobe only where the table does not fit the images).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
     None for the table).  A failure leaves no new material or image behind.
     """
     if ndf_model not in NDF_MODELS:
@@ -145,7 +146,8 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
 
             rgba = materials.check_color("color", color)
             maps, _ = conv.glossy_from_ellipsoid(np.asarray(tables["ellipsoid"], dtype=np.float64))
-            # SVM / GPU / EEVEE render the §8 ellipsoid lobe (the Ellipsoid Fit material), OSL the table
+            # OSL, SVM / GPU and EEVEE render the table; the §8 ellipsoid lobe (the Ellipsoid Fit material) is
+            # the fallback twin where the table does not fit the node-group images
             mat, loss = make_ndf_material(NDFTable(tables["ndf"], kind=ndf_kind.lower()),
                                           name or f"Microgeometry {stem} (NDF table)", F=rgba[:3],
                                           svm_twin=lambda tree: _average_node(tree, maps, rgba).outputs["BSDF"]), None

@@ -368,6 +368,28 @@ def gaussian_surface(shape: tuple[int, int], pixel_um: float, rms_height_um: flo
     return HeightField(h, pixel_um, source=f"gaussian_surface(seed={seed})")
 
 
+#: A scan is a periodic tile when both wrap-around seams are as smooth as its interior: the rms height step across
+#: each seam at most this many times the rms step between interior neighbours along the same axis (a measured,
+#: non-periodic scan's seam steps are of the order of its rms height: tens to hundreds of neighbour steps).
+PERIODIC_SEAM_RATIO = 3.0
+
+
+def is_periodic(heights) -> bool:
+    """True if ``heights`` (2D, µm) tile seamlessly: no missing point, and the steps across both wrap-around
+    seams (last column -> first, last row -> first) have an rms at most ``PERIODIC_SEAM_RATIO`` times that of
+    the steps between interior neighbours along the same axis (synthetic FFT surfaces; not measured scans)."""
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or min(h.shape) < 4 or not np.all(np.isfinite(h)):
+        return False
+    for axis in (0, 1):
+        inner = np.diff(h, axis=axis)
+        seam = np.take(h, 0, axis=axis) - np.take(h, -1, axis=axis)
+        rms_inner = float(np.sqrt(np.mean(inner * inner)))
+        if not rms_inner > 0 or float(np.sqrt(np.mean(seam * seam))) > PERIODIC_SEAM_RATIO * rms_inner:
+            return False
+    return True
+
+
 def spectral_slope_covariance(heights: np.ndarray, pixel_um: float, sigma_um: float = 0.0) -> np.ndarray:
     """Slope covariance of a *periodic* height field from its spectrum, optionally Gaussian-filtered.
 

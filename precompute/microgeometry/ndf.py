@@ -41,7 +41,7 @@ from scipy.ndimage import map_coordinates
 
 from ..parallel import ordered_map
 from .ellipsoid import ellipsoid_ndf, fit_beckmann, fit_ellipsoid, fit_ggx  # noqa: F401 - re-exports
-from .heightfield import HeightField, Plane, as_heightfield, fit_plane
+from .heightfield import MAX_POINTS, HeightField, Plane, as_heightfield, fit_plane, is_periodic
 
 __all__ = [
     "NDFTable",
@@ -494,12 +494,35 @@ def _warm_allocator() -> None:
     np.empty(3 << 20)
 
 
+def _periodic(hf: HeightField, periodic, sigma_um) -> int:
+    """The wrap-around halo (pixels) of a periodic scan, 0 if the scan is treated as finite.  ``periodic``:
+    False (the paper: the border's windows are one-sided), True, or "auto" (``heightfield.is_periodic``)."""
+    if periodic not in (False, True, "auto"):
+        raise ValueError(f"periodic: expected True, False or 'auto', got {periodic!r}")
+    if periodic is False or (periodic == "auto" and not is_periodic(hf.heights)):
+        return 0
+    if not np.all(np.isfinite(hf.heights)):
+        raise ValueError("periodic: a scan with missing points cannot wrap around (use periodic=False)")
+    _, radius = _check_sigma(sigma_um, hf.pixel_um, hf.shape)
+    ny, nx = hf.shape
+    if (ny + 2 * radius) * (nx + 2 * radius) > MAX_POINTS:
+        if periodic == "auto":
+            return 0
+        raise ValueError(f"periodic: the scan with its {radius} px wrap-around halo exceeds {MAX_POINTS} points")
+    return radius
+
+
 def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_sigmas: float, tile, dtype,
-                    post=None):
+                    post=None, wrap: int = 0):
     """Yield ``(core, dh/dx, dh/dy, ok)`` per tile (µm/µm slopes; the plane's slopes subtracted), or
-    ``post(core, dh/dx, dh/dy, ok)`` computed on the worker thread when ``post`` is given."""
+    ``post(core, dh/dx, dh/dy, ok)`` computed on the worker thread when ``post`` is given.  ``wrap`` > 0: the
+    scan is a periodic tile, padded by ``wrap`` pixels of itself on every side (``_periodic``) so every point's
+    window is whole (the explicit surface ``heightfield.smoothed_heights`` describes); cores in scan pixels."""
     d = hf.pixel_um
     sig_px, radius = _check_sigma(sigma_um, d, hf.shape)
+    if wrap:
+        hf = HeightField(np.pad(np.asarray(hf.heights), wrap, mode="wrap"), d)
+        border_sigmas = 0.0
     if not (isinstance(min_weight, (int, float, np.integer, np.floating)) and 0.0 <= float(min_weight) < 1.0):
         raise ValueError(f"min_weight: expected a fraction in [0, 1), got {min_weight!r}")
     try:
@@ -521,7 +544,12 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
     _warm_allocator()
 
     def job(core):
-        b, c, ok = _block_slopes(hf, core, sig_px, radius, min_weight, dtype)
+        if wrap:
+            y0, y1, x0, x1 = core
+            b, c, ok = _block_slopes(hf, (y0 + wrap, y1 + wrap, x0 + wrap, x1 + wrap), sig_px, radius, min_weight,
+                                     dtype)
+        else:
+            b, c, ok = _block_slopes(hf, core, sig_px, radius, min_weight, dtype)
         y0, y1, x0, x1 = core
         if nb:
             yy = np.arange(y0, y1)[:, None]
@@ -534,12 +562,12 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
         return (core, b, c, ok) if post is None else post(core, b, c, ok)
 
     workers = 1 if tile is None else _workers()
-    yield from ordered_map(job, _tiles(ny, nx, T), workers)
+    yield from ordered_map(job, _tiles(ny - 2 * wrap, nx - 2 * wrap, T), workers)
 
 
 def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool = True,
                     min_weight: float = 0.05, border_sigmas: float = 0.0, *, tile: int | None = _TILE,
-                    dtype=np.float32) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    dtype=np.float32, periodic=False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Slopes of the Gaussian-weighted least-squares plane at every data point (§5.1).
 
     At each measured point ``p`` solve ``min_{a,b,c} sum_u w(u) M(p+u) (h(p+u) - a - b u_x - c u_y)^2``
@@ -549,7 +577,10 @@ def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool 
     points and where the local fit is ill-conditioned (masked weight below ``min_weight`` of the
     full kernel, or a near-singular normal matrix).  ``border_sigmas > 0`` also drops points closer
     than that many sigma to the scan border (their one-sided windows smooth less, which widens
-    the NDF slightly; the paper keeps every point, which is the default).
+    the NDF slightly; the paper keeps every point, which is the default).  ``periodic``: True if the scan
+    is a periodic tile (windows wrap around: every point's fit is a whole window, the slopes of
+    ``heightfield.smoothed_heights``; no border, and no plane removed: a tile's mean slope is 0), "auto" (``heightfield.is_periodic``: seamless scans only), or
+    False (default, the paper's finite scan).
 
     Streaming: the scan is processed in ``tile`` x ``tile`` cores (plus the window's halo), each with
     its own least-squares plane removed in float64, so the FFTs run in ``dtype`` (float32 by default:
@@ -557,11 +588,15 @@ def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool 
     memory O(tile^2).  ``tile=None, dtype=np.float64`` is the whole-field float64 computation.
     """
     hf, plane = _prepare(heights, pixel_um, detilt)
+    wrap = _periodic(hf, periodic, sigma_um)
+    if wrap:
+        plane = None   # a periodic tile has no tilt (its mean slope is 0); a fitted plane would tilt the NDF
     ny, nx = hf.shape
     sx = np.zeros((ny, nx))
     sy = np.zeros((ny, nx))
     ok = np.zeros((ny, nx), bool)
-    for (y0, y1, x0, x1), b, c, k in _filtered_tiles(hf, plane, sigma_um, min_weight, border_sigmas, tile, dtype):
+    for (y0, y1, x0, x1), b, c, k in _filtered_tiles(hf, plane, sigma_um, min_weight, border_sigmas, tile, dtype,
+                                                     wrap=wrap):
         sx[y0:y1, x0:x1] = np.where(k, b, 0.0)
         sy[y0:y1, x0:x1] = np.where(k, c, 0.0)
         ok[y0:y1, x0:x1] = k
@@ -570,13 +605,14 @@ def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool 
 
 def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int = 1025,
                  detilt: bool = True, border_sigmas: float = 0.0, *, tile: int | None = _TILE,
-                 dtype=np.float32) -> NDFTable:
+                 dtype=np.float32, periodic=False) -> NDFTable:
     """Filtered geometric NDF (§5.1): histogram of the normals of Gaussian-weighted local plane fits.
 
     Every well-conditioned measured point contributes its pixel area (projected-area weighting,
     so the normalised table is ``D(m)`` per steradian).  ``heights`` in µm (array or
     :class:`HeightField`), ``pixel_um`` and ``sigma_um`` (default 1 µm as in the paper) in µm.
-    ``border_sigmas``: see :func:`filtered_slopes` (0 = every point, as in the paper).  The slopes are
+    ``border_sigmas``, ``periodic``: see :func:`filtered_slopes` (0 / False = every point, one-sided windows at
+    the border, as in the paper).  The slopes are
     computed and splatted tile by tile on two worker threads (``tile``, ``dtype``: see
     :func:`filtered_slopes`), so memory stays bounded (a 4096^2 scan: ~0.6 GiB peak of the whole process
     including its float64 copy, ~1.5 s of CPU time; bench/out/microgeometry_scale.md).
@@ -594,14 +630,18 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
         return n_ok, list(_splat_cells(b, c, R))
 
     n = 0
-    for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat):
+    wrap = _periodic(hf, periodic, sigma_um)
+    if wrap:
+        plane = None   # a periodic tile has no tilt (its mean slope is 0); a fitted plane would tilt the NDF
+    for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat, wrap=wrap):
         n += n_ok
         for j, i, acc in cells:
             table[j:j + acc.shape[0], i:i + acc.shape[1]] += acc
     if n == 0:
         raise ValueError("heights: no point has a well-conditioned local plane fit (too many missing points?)")
     return _normalised_table(flat, R, "filtered",
-                             {"pixel_um": hf.pixel_um, "sigma_um": float(sigma_um), "n_points": n})
+                             {"pixel_um": hf.pixel_um, "sigma_um": float(sigma_um), "n_points": n,
+                              "periodic": bool(wrap)})
 
 
 # ============================================================================ Kirchhoff

@@ -71,6 +71,8 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
               "wavelength_um": f32(wavelength_um) if ndf_kind == "KIRCHHOFF" else 0.0,
               "synthesize": bool(synthesize), "texture_size": texture_size if synthesize else 0,
               "texel_um": f32(texel_um) if synthesize else 0.0, "seed": int(seed) if synthesize else 0}
+    if ndf_kind == "FILTERED":
+        inputs["periodic"] = "auto"   # the filtered NDF of a seamless scan wraps its windows (ndf.filtered_ndf)
     if with_ndf:
         inputs["with_ndf"] = True     # only then: the ellipsoid-only entries stay valid
     state = {"cached": True}
@@ -80,7 +82,9 @@ def compute_tables(filepath: str, pixel_um: float, sigma_um: float = 1.0, wavele
         hf = hfm.load_heightfield(filepath, pixel_um=pixel_um)
         report(0.1)
         if ndf_kind == "FILTERED":
-            ndf = mg.filtered_ndf(hf, sigma_um=sigma_um, resolution=_NDF_RESOLUTION)
+            # a seamless (periodic) scan wraps its windows around, so no point gets a one-sided window: the NDF
+            # is then exactly the normals of the σ-smoothed surface tiled (heightfield.smoothed_heights)
+            ndf = mg.filtered_ndf(hf, sigma_um=sigma_um, resolution=_NDF_RESOLUTION, periodic="auto")
         elif ndf_kind == "NAIVE":
             ndf = mg.naive_ndf(hf, resolution=_NDF_RESOLUTION)
         else:

@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from scratch_materials.precompute.microgeometry.heightfield import HeightField, gaussian_surface, spectral_slope_covariance
+from scratch_materials.precompute.microgeometry.heightfield import (HeightField, gaussian_surface, is_periodic,
+                                                                  spectral_slope_covariance)
 from scratch_materials.precompute.microgeometry.ndf import (NDFTable, filtered_ndf, filtered_slopes, fit_beckmann, fit_ellipsoid,
                                           kirchhoff_integral_direct, kirchhoff_integral_fft, kirchhoff_ndf, naive_ndf)
 
@@ -64,6 +65,66 @@ def test_filtered_slopes_equal_gaussian_smoothed_gradient(iso):
     # the continuum formula var_f = var * (l^2 / (l^2 + 4 sigma^2))^2 for a Gaussian spectrum
     C = spectral_slope_covariance(iso.heights, 0.11)
     assert ref[0, 0] / C[0, 0] == pytest.approx((16 / 20) ** 2, rel=0.02)
+
+
+def _smoothed_gradient(hf, sigma_um=1.0):
+    """(dh/dx, dh/dy) of the periodic ``hf`` smoothed by the Gaussian of std ``sigma_um`` (spectral)."""
+    F = np.fft.fft2(hf.heights)
+    KY = 2 * np.pi * np.fft.fftfreq(hf.shape[0], hf.pixel_um)[:, None]
+    KX = 2 * np.pi * np.fft.fftfreq(hf.shape[1], hf.pixel_um)[None, :]
+    g = F * np.exp(-0.5 * sigma_um ** 2 * (KX ** 2 + KY ** 2))
+    return np.fft.ifft2(1j * KX * g).real, np.fft.ifft2(1j * KY * g).real
+
+
+def test_a_seamless_scan_wraps_its_windows_around():
+    """A periodic tile (seamless edges): every point's window wraps around, so the filtered NDF is the normals of
+    the σ-smoothed surface tiled (the explicit surface of the NDF truth bench) at every point, border included;
+    the paper's finite-scan treatment (one-sided windows at the border) widens this scan's NDF by ~20 %."""
+    hf = gaussian_surface((256, 512), 0.11, 0.05, (20.0, 2.0), seed=4)
+    assert is_periodic(hf.heights)
+    gx, gy = _smoothed_gradient(hf)
+    _, cov = filtered_ndf(hf, detilt=False, periodic="auto").moments()
+    # truncated kernel (4 σ) + the table's binning: 2 %, as the interior test above
+    assert cov[1, 1] == pytest.approx(np.mean((gy - gy.mean()) ** 2), rel=0.02)
+    _, cov_finite = filtered_ndf(hf, detilt=False).moments()
+    assert cov_finite[1, 1] > 1.1 * cov[1, 1]
+    sx, sy, ok = filtered_slopes(hf, detilt=False, periodic=True)
+    fx, fy, fok = filtered_slopes(hf, detilt=False)
+    b = int(np.ceil(4 / 0.11))
+    assert ok.all() and np.abs(sy - fy)[b:-b, b:-b].max() < 1e-6   # the interior is the finite scan's
+    assert np.sqrt(np.mean((sy - gy) ** 2)) < 3e-3 * gy.std()          # and so is every point now
+    # measured-like scans are not periodic: a crop, a tilt, a missing point ("auto" keeps the paper's border)
+    h = hf.heights
+    assert not is_periodic(h[:200, :300])
+    assert not is_periodic(h + 0.002 * np.arange(h.shape[1])[None, :])
+    holed = h.copy()
+    holed[5, 5] = np.nan
+    assert not is_periodic(holed)
+    _, cov_holed = filtered_ndf(HeightField(holed, 0.11), detilt=False, periodic="auto").moments()
+    assert cov_holed[1, 1] == pytest.approx(cov_finite[1, 1], rel=0.01)
+    with pytest.raises(ValueError, match="periodic"):
+        filtered_slopes(HeightField(holed, 0.11), periodic=True)
+    with pytest.raises(ValueError, match="periodic"):
+        filtered_ndf(hf, periodic="yes")
+
+
+def test_material_from_a_seamless_scan_uses_whole_windows(tmp_path):
+    """*Material from Height Field*'s tables (``tables.compute_tables``) of a seamless scan saved to a file: the
+    NDF's slope covariance is the σ-smoothed surface's (the explicit-geometry truth), not the finite scan's."""
+    from scratch_materials.precompute.microgeometry import tables
+
+    hf = gaussian_surface((256, 256), 0.25, 0.3, (6.0, 2.0), seed=5)   # the rough surface of the NDF truth audit
+    path = tmp_path / "rough.npy"
+    np.save(path, hf.heights)
+    out = tables.compute_tables(str(path), 0.25, 1.0, with_ndf=True)
+    mean, cov = NDFTable(out["ndf"], "filtered").moments()
+    # no tilt: a tile's mean slope is 0 (a least-squares plane of one period is not: 0.0034 in y here, which
+    # tilted the exit lobe by 0.4° and moved E[d_y²] at a 50° view by 0.006)
+    assert np.abs(mean).max() < 5e-4, mean
+    gx, gy = _smoothed_gradient(hf)
+    plane_free = [np.mean((g - g.mean()) ** 2) for g in (gx, gy)]
+    # finite-scan treatment: +10 % in y for this realisation (one-sided windows at the border)
+    assert cov[0, 0] == pytest.approx(plane_free[0], rel=0.03) and cov[1, 1] == pytest.approx(plane_free[1], rel=0.03)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
