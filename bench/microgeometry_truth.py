@@ -33,7 +33,8 @@ SURFACE = dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.2, corr_um=(8.0,
 #: Other surfaces for an independent check (``--surface``): an isotropic one and a rougher brushed one.
 SURFACES = {"brushed": SURFACE,
             "iso": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.15, corr_um=(4.0, 4.0), seed=11),
-            "rough": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.3, corr_um=(6.0, 2.0), seed=5)}
+            "rough": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.3, corr_um=(6.0, 2.0), seed=5),
+            "rougher": dict(shape=(256, 256), pixel_um=0.25, rms_height_um=0.5, corr_um=(6.0, 1.5), seed=7)}
 SIGMA_UM = 1.0
 PERIODS = 101          # tile periods across the frame (coprime with the pixel counts used)
 PERIOD_M = 0.01        # one tile in metres

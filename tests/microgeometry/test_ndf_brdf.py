@@ -197,3 +197,42 @@ def test_sharp_ndf_sampler_chi_square(sharp, wo):
     assert pvalue(wo) > 1e-3
     tilt = np.array([0.03, 0.02, 0.0])
     assert pvalue((wo + tilt) / np.linalg.norm(wo + tilt)) < 1e-6
+
+
+def test_the_table_keeps_a_rough_scans_lobe_width():
+    """A rough brushed scan's filtered NDF (periodic synthetic surface, rms 0.5 µm, correlation 6 x 1.5 µm: the
+    table's 19² cells span the whole hemisphere, ~0.8 cell per σ): the table's exit-direction second moments vs
+    the same microfacet BRDF on the fine 1025² NDF (its own height-correlated Smith G2, midpoint rule on the
+    disk). Cell averages used as bilinear node values blur the lobe by a cell (0.018 at 45/90); the prefiltered
+    nodes keep each cell's mass (measured 0.006)."""
+    from scratch_materials.precompute.microgeometry.heightfield import gaussian_surface
+    from scratch_materials.precompute.microgeometry.ndf import filtered_ndf
+
+    hf = gaussian_surface((256, 256), 0.25, 0.5, (6.0, 1.5), seed=7)
+    N = filtered_ndf(hf, sigma_um=1.0, periodic=True).normalized()
+    lam = nb._LambdaTable(N)
+    n = 700
+    g = (np.arange(n) + 0.5) / n * 2 - 1
+    X, Y = np.meshgrid(g, g)
+    inside = X ** 2 + Y ** 2 < 1
+    wi = np.stack([X[inside], Y[inside], np.sqrt(1 - X[inside] ** 2 - Y[inside] ** 2)], -1)
+    dw = (2 / n) ** 2 / wi[:, 2]
+
+    def second_moments(w):
+        return np.array([(w * wi[:, 0] ** 2).sum(), (w * wi[:, 1] ** 2).sum()]) / w.sum()
+
+    worst = {}
+    for prefilter in (True, False):
+        B = nb.ndf_brdf(N, prefilter=prefilter)
+        errs = []
+        for th, ph in ((0.0, 0.0), (45.0, 90.0), (70.0, 90.0)):
+            t, p = np.radians(th), np.radians(ph)
+            wo = np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
+            h = wi + wo
+            h /= np.linalg.norm(h, axis=1, keepdims=True)
+            model = N.eval(h) / (1 + lam(wi) + lam(np.broadcast_to(wo, wi.shape))) / (4 * wo[2]) * dw
+            table = B.eval(wi, np.broadcast_to(wo, wi.shape)).mean(1) * wi[:, 2] * dw
+            errs.append(np.abs(second_moments(table) - second_moments(model)).max())
+        worst[prefilter] = max(errs)
+    assert worst[True] < 0.008, worst
+    assert worst[False] > 0.012, worst      # the check can fail: the unfiltered table misses
