@@ -5,7 +5,7 @@ scratch material, OSL path and SVM twin; direction-coded worlds give the albedo 
 Profiles: V-grooves of 45 and 15 deg half angle (v45, v15: the deep one inter-reflects up to ~4 times), quartic
 0.2 and 1.0 (q02, q10), round 0.2 (round02), an asymmetric sawtooth (tabulated; walls at 27 and 63 deg from the
 surface), a sinusoid-like tabulated profile with a flat bottom (sinflat).  Conductors: copper and a lossy grey
-conductor (n = 1.5, k = 0.5 in every channel, ~11 % reflectance at normal incidence, so every inter-reflection
+conductor (n = 1.5, k = 0.5 in every channel, 7.7 % reflectance at normal incidence, so every inter-reflection
 loses most of its energy) besides lossless.  Views off the bench's list: 20/60, 50/120, 70/45, 85/0, 85/90,
 30/170, 60/0 (theta from the normal / azimuth from the scratch, deg; azimuths beyond 90 deg check the mirror
 handling of the view).
@@ -131,14 +131,16 @@ def main(argv: list[str]) -> int:
               else st.TruthScene(addon, case, res=a.res, samples=a.samples))
         for vname in views:
             meas = st.measure_view(ts, table[vname], ("truth",) + paths)
+            leak = leak_fraction(ts, meas)
             bad = {p: [w for w, im in meas[p]["img"].items() if not np.all(np.isfinite(im))] for p in meas}
             for p in paths:
                 e = errors_safe(meas, p)
-                rows.append(row(case.name, vname, p, e))
+                rows.append(row(case.name, vname, p, e) + [100 * leak])
                 print(" | ".join(str(r) if not isinstance(r, float) else f"{r:.2f}" for r in rows[-1]),
                       "NON-FINITE " + str(bad) if any(bad.values()) else "",
                       "truth A", np.round(meas["truth"]["A"], 4), "mat A", np.round(meas[p]["A"], 4), flush=True)
-    head = ["case", "view", "path", "A %", "m1 x100", "m2 x100", "studio %", "noise (1 sigma) x100", "studio noise %"]
+    head = ["case", "view", "path", "A %", "m1 x100", "m2 x100", "studio %", "noise (1 sigma) x100", "studio noise %",
+            "truth leak x100"]
     text = (f"{a.res}x{a.res} px, {a.samples} spp, {time.perf_counter() - t0:.0f} s\n\n"
             + _util.format_table(head, rows) + "\n")
     _util.out_path(a.out).write_text(text)
@@ -148,3 +150,10 @@ def main(argv: list[str]) -> int:
 
 def errors_safe(meas, p):
     return st.errors(meas, p)
+
+
+def leak_fraction(ts, meas, seed: int = 0) -> float:
+    """Fraction of the truth's light leaving below the horizon (d_z < 0, the ``below`` world; impossible for
+    grooves dug into a plane: samples that slipped through the mesh).  Such a sample moves E[d_c] by at most 2 L."""
+    img = ts.render("truth", "below", seed)
+    return float(np.max(st.image_means(img) / np.maximum(meas["truth"]["A"], 1e-9)))
