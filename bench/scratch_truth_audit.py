@@ -98,6 +98,38 @@ def layered_cases(addon) -> list[st.Case]:
     return [st.Case("q015_iron brushed 4 layers", profiles.quartic(0.15, segments=32), fresnel.conductor_preset("iron"), lp)]
 
 
+class BackstopTruthScene(st.TruthScene):
+    """``TruthScene`` with a backstop: an absorbing plane just under the grooves' deepest point.
+
+    Cycles lets a small fraction of the paths slip through the explicit grooves' mesh (0.2 % of the samples at
+    85/90 for a V-groove, 0.9 % of a deep lossy quartic's reflected light at 50/120: measured with the ``below``
+    world).  Without a backstop they leave below the horizon and pull E[d_z] down by up to twice their share;
+    with it they are absorbed (the albedo is then low by their share, which ``leak`` reports: the backstop emits
+    1 in the leak render, nothing otherwise)."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        import bpy
+
+        mat = bpy.data.materials.new("Truth backstop")
+        mat.use_nodes = True
+        tree = mat.node_tree
+        tree.nodes.clear()
+        self._emit = tree.nodes.new("ShaderNodeEmission")
+        self._emit.inputs["Color"].default_value = (1, 1, 1, 1)
+        self._emit.inputs["Strength"].default_value = 0.0
+        out = tree.nodes.new("ShaderNodeOutputMaterial")
+        tree.links.new(self._emit.outputs[0], out.inputs["Surface"])
+        depth = float(self.case.profile.depth) * self.period
+        self.backstop = self.addon.render.add_plane(self.scene, size=40.0 * st.ORTHO, material=mat, name="Backstop",
+                                                    location=(0.0, 0.0, -depth - 0.25 * self.period))
+
+    def render(self, what: str, world: str, seed: int = 0) -> np.ndarray:
+        self.backstop.hide_render = what != "truth"
+        self._emit.inputs["Strength"].default_value = 1.0 if world == "below" else 0.0
+        return super().render(what, world, seed)
+
+
 def row(case, vname, path, e):
     return [case, vname, path, 100 * e["A"], 100 * e["m1"], 100 * e["m2"], 100 * e["studio"],
             100 * max(e["noise_A"], e["noise_m1"], e["noise_m2"]), 100 * e["noise_studio"]]
@@ -114,6 +146,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--paths", default="osl,svm")
     ap.add_argument("--out", default="scratch_truth_audit_run.md")
     ap.add_argument("--layered", action="store_true")
+    ap.add_argument("--backstop", action="store_true", help="absorb the paths that slip through the grooves' mesh")
     a = ap.parse_args(argv)
     addon = _util.blender(register=True)
     paths = tuple(a.paths.split(","))
@@ -128,6 +161,7 @@ def main(argv: list[str]) -> int:
         table = VIEWS
     for case, views in todo:
         ts = (st.LayeredTruthScene(addon, case, res=a.res, samples=a.samples) if a.layered
+              else BackstopTruthScene(addon, case, res=a.res, samples=a.samples) if a.backstop
               else st.TruthScene(addon, case, res=a.res, samples=a.samples))
         for vname in views:
             meas = st.measure_view(ts, table[vname], ("truth",) + paths)
