@@ -17,7 +17,9 @@ Environments make the image mean a moment of where light leaves the surface (Tex
 * ``white``  colour 1: the albedo A_c per channel;
 * ``first``  colour 0.5 + 0.5 d (RGB = xyz): A_c (1 + E_c[d_c]) / 2, decoded to m1_c = E_c[d_c];
 * ``second`` colour d² per channel: A_c E_c[d_c²] = m2_c A_c (sums to the albedo for a grey surface);
-* ``studio`` the README's studio environment plus a small area light (an ordinary scene).
+* ``studio`` the README's studio environment plus a small area light (an ordinary scene);
+* ``below``  1 for d_z < 0 (leaving below the horizon, impossible for grooves): the fraction of the truth's
+  samples that slipped through the mesh (Cycles' ray / edge precision at grazing views).
 
 The camera is rolled so that the scratch direction is vertical in the image and its width is a whole
 number of projected groove periods, the pixel filter is a 1-px box: the image mean of the explicit scene
@@ -193,8 +195,20 @@ def set_world(addon, scene, kind: str) -> None:
         vm.operation = "MULTIPLY"
         tree.links.new(coord.outputs["Generated"], vm.inputs[0])
         tree.links.new(coord.outputs["Generated"], vm.inputs[1])
+    elif kind == "below":
+        # 1 where the ray leaves below the horizon (d_z < 0): impossible for the grooves, so its image mean is
+        # the fraction of the truth's samples that slipped through the mesh (a measurement artefact)
+        vm.operation = "DOT_PRODUCT"
+        vm.inputs[1].default_value = (0.0, 0.0, 1.0)
+        tree.links.new(coord.outputs["Generated"], vm.inputs[0])
+        lt = tree.nodes.new("ShaderNodeMath")
+        lt.operation = "LESS_THAN"
+        lt.inputs[1].default_value = 0.0
+        tree.links.new(vm.outputs["Value"], lt.inputs[0])
+        tree.links.new(lt.outputs["Value"], bg.inputs["Color"])
+        return
     else:
-        raise ValueError(f"kind: expected white, first, second or studio, got {kind!r}")
+        raise ValueError(f"kind: expected white, first, second, below or studio, got {kind!r}")
     tree.links.new(vm.outputs["Vector"], bg.inputs["Color"])
 
 
@@ -317,7 +331,7 @@ class TruthScene:
         self.grooves = None
         self.light = None
         self.worlds = {}
-        for kind in WORLDS:
+        for kind in WORLDS + ("below",):
             set_world(addon, self.scene, kind)
             self.worlds[kind] = self.scene.world
             self.scene.world.name = f"Truth {kind}"
