@@ -79,6 +79,8 @@ AUDIT_TILES = {
                          {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.08, "F0": 1.0, "ks": 0.9,
                           "kd": (0.25, 0.05, 0.03)}]),
 }
+# the bump with its cap as rough as the flanks: isolates what the sharp (α 0.08) cap costs at the table's resolution
+AUDIT_TILES["bump (cap α 0.3)"] = (bump_tile, AUDIT_TILES["bump"][1][:2] + [{**AUDIT_TILES["bump"][1][2], "alpha": 0.3}])
 
 
 def _view(theta, phi):
@@ -100,6 +102,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--views", default="")
     ap.add_argument("--n-facets", type=int, default=10000)
     ap.add_argument("--quick", action="store_true", help="2000 facets, 2 views, 64 spp")
+    ap.add_argument("--no-lamp", action="store_true", help="the direction-coded environment alone")
+    ap.add_argument("--bake-seed", type=int, default=0)
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     addon = blender()
@@ -118,7 +122,7 @@ def main(argv: list[str]) -> int:
         builder, mats = AUDIT_TILES[name]
         tile = builder()
         t0 = time.perf_counter()
-        var, times, info = bt.bake_variants(tile, mats, n_facets=n_facets, seed=0, indirect=args.gi)
+        var, times, info = bt.bake_variants(tile, mats, n_facets=n_facets, seed=args.bake_seed, indirect=args.gi)
         bake_s = " / ".join(f"{k} {v:.1f}" for k, v in times.items())
         print(name, "faces", len(tile.faces), "bake", bake_s, f"({time.perf_counter() - t0:.1f} s)", flush=True)
         for bounces in ([0, GI_BOUNCES] if args.gi else [0]):
@@ -131,7 +135,7 @@ def main(argv: list[str]) -> int:
             t0 = time.perf_counter()
             ex, bk, secs, se = bt.render_set(tile, mats, mats_bl, [_view(*v) for v in views], n=n, spp=spp,
                                              bounces=bounces, noise=True, seeds=range(7, 7 + args.seeds),
-                                             shifts=args.shifts, osl=osl)
+                                             shifts=args.shifts, osl=osl, lamp=not args.no_lamp)
             for k in mats_bl:
                 err, sig = bt.rel_error(ex, bk[k], se["explicit"], se[k])
                 for v, e, sg, a, b in zip(views, err, sig, ex, bk[k]):
@@ -146,8 +150,8 @@ def main(argv: list[str]) -> int:
     report("biscale_truth_audit" + (f"_{args.tag}" if args.tag else ""),
            ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "err / σ", "explicit RGB",
             "baked RGB"], rows,
-           notes=f"SVM (explicit tiles and the baked table's node graph{'; (OSL) rows: the same material on OSL' if args.osl else ''}); "
-                 f"{n_facets} facets, bake seed 0, closure table ωi res 19 x 19 x 19 view grid (table.tile_view_grid); "
+           notes=f"{'environment only (no lamp); ' if args.no_lamp else ''}bake seed {args.bake_seed}; SVM (explicit tiles and the baked table's node graph{'; (OSL) rows: the same material on OSL' if args.osl else ''}); "
+                 f"{n_facets} facets, closure table ωi res 19 x 19 x 19 view grid (table.tile_view_grid); "
                  f"explicit {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {spp} spp x "
                  f"{args.seeds} seeds, explicit images the mean of {args.shifts} camera offsets; direction-coded "
                  f"world 0.5+0.5d + area lamp 300 W at (-1.5, 1, 2.5) size 1.5 (NEE on); GI: {GI_BOUNCES} bounces.")

@@ -165,6 +165,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--brdfs", default=",".join(BRDFS))
     ap.add_argument("--no-eevee", action="store_true")
     ap.add_argument("--eevee-samples", type=int, default=64)
+    ap.add_argument("--res", type=int, default=32, help="Direction Resolution of the import (the operator's default 32)")
+    ap.add_argument("--n-theta", type=int, default=32, help="View Angles of the import (default 32)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     addon = blender(register=True)
@@ -188,10 +190,10 @@ def main(argv: list[str]) -> int:
         t_write = time.perf_counter() - t0
         bpy.context.view_layer.objects.active = plane
         t0 = time.perf_counter()
-        assert bpy.ops.scratch.import_merl(filepath=path) == {"FINISHED"}
+        assert bpy.ops.scratch.import_merl(filepath=path, res=args.res, n_theta=args.n_theta) == {"FINISHED"}
         t_op = time.perf_counter() - t0
         imported = plane.data.materials[0]
-        api = merl_ops.material_from_merl(path, name=f"{name} (API)")
+        api = merl_ops.material_from_merl(path, name=f"{name} (API)", res=args.res, n_theta=args.n_theta)
         same = all(str(imported[k]) == str(api[k]) for k in ("tabulated_svm", "tabulated_eevee")) and np.allclose(
             list(imported["merl_albedo_table"]), list(api["merl_albedo_table"]))
         notes.append(f"{name}: file written in {t_write:.1f} s, operator import {t_op:.1f} s "
@@ -236,6 +238,6 @@ def main(argv: list[str]) -> int:
     report("merl_audit" + (f"_{args.tag}" if args.tag else ""),
            ["BRDF", "light", "path", "view θo/φo", "max rel. err", "render noise 1σ", "err / σ", "analytic RGB",
             "imported RGB"], rows,
-           notes="; ".join(notes) + f". 32x32 px x {args.spp} spp x {len(seeds)} seeds per Cycles image, max bounces 0.")
+           notes=f"import res {args.res}, n_theta {args.n_theta}; " + "; ".join(notes) + f". 32x32 px x {args.spp} spp x {len(seeds)} seeds per Cycles image, max bounces 0.")
     del addon
     return 0
