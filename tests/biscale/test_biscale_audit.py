@@ -131,3 +131,40 @@ def test_unsupported_slot_graphs_keep_the_viewport_colour(addon, scene):
         m.diffuse_color = (0.1, 0.3, 0.5, 1.0)
         d = bm.small_scale_material(m)
         assert d == {"model": "lambert", "albedo": pytest.approx((0.1, 0.3, 0.5))}
+
+
+@pytest.mark.bpy
+@pytest.mark.render
+def test_sawtooth_table_matches_explicit_tiles(addon, scene, render_dir, capsys):
+    """The asymmetric sawtooth of ``bench/biscale_truth_audit`` (shallow diffuse face, steep GGX α 0.15 face; built
+    with the public ``heightfield_tile``) baked to the closure table (2000 facets, seed 0; the closure table is
+    ωi res 19 on its view grid whatever the bake's dir_res, 4 here: only the unused fitted twin reads it) vs the
+    explicit tiles (100 x 100 on a 4 m plane) on Cycles SVM, direct light, at views off the bench's list (55/300,
+    70/10), direction-coded world + area lamp, 32x32 px x 64 spp x 2 seeds, explicit frames averaged over 2 camera
+    offsets.
+    Bound per view: 3 % (issue 16's goal) + 3σ of the render noise (σ: the across-seed per-pixel variance, ~0.7-1 %
+    at 64 spp).  Measured: bench (10,000 facets, 256 spp) 0.3-1.3 %, σ 0.3-0.6 %; here 0.8 / 1.9 % (σ 0.65 / 0.8 %,
+    111 s at load 11-14).  The
+    table of the mirrored sawtooth (steep glossy face on the other side: a deliberately broken table whose
+    x-symmetric averages are right) misses by more than 10 % at some view (measured 7.3 / 123 %: put in place of the
+    table it fails the bound at both views)."""
+    bench = importlib.import_module("bench.biscale_truth")
+    audit = importlib.import_module("bench.biscale_truth_audit")
+    geo = importlib.import_module(addon.__name__.rpartition(".")[0] + ".precompute.biscale.geometry")
+    _, mats = audit.AUDIT_TILES["sawtooth"]
+    tile = audit.sawtooth_tile()
+    h = np.array([[0.0, 1 / 3, 2 / 3, 1.0]] * 2)
+    mirrored = geo.heightfield_tile(h[:, ::-1], 1.0, 0.3, materials=np.array([[0, 0, 0, 1]] * 2))
+    bl = {k: bench._material(f"sawtooth {k}", *bench.bake_variants(t, mats, n_facets=2000, dir_res=4, seed=0,
+                                                                    indirect=False)[0]["table"])
+          for k, t in (("table", tile), ("broken", mirrored))}
+    views = [(55.0, 300.0), (70.0, 10.0)]
+    ex, bk, _, se = bench.render_set(tile, mats, bl, [audit._view(*v) for v in views], n=100, spp=64,
+                                     noise=True, seeds=(7, 8), shifts=2, osl=False, tmp=str(render_dir))
+    err, sig = bench.rel_error(ex, bk["table"], se["explicit"], se["table"])
+    bad, _ = bench.rel_error(ex, bk["broken"])
+    with capsys.disabled():
+        print(f"\n[sawtooth audit] views {views}: table {np.round(100 * err, 2)} % (1σ {np.round(100 * sig, 2)} %), "
+              f"mirrored table {np.round(100 * bad, 1)} %")
+    assert np.all(err <= 0.03 + 3 * sig), (err, sig)
+    assert bad.max() > 0.10, bad
