@@ -8,7 +8,12 @@
   - a *Principled BSDF* -> ``cook_torrance`` with the GGX distribution, alpha = Roughness²
     (Blender's own mapping), F0 = Base Color for Metallic = 1 and 0.04·Specular IOR Level/0.5
     for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
-  - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², F0 = Color, no diffuse);
+  - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², no diffuse) with Cycles' colour: the Glossy
+    BSDF has no Fresnel, its Color c scales the lobe at every angle, so F0 = 1 (F = 1) and ks = c for a grey
+    c; a coloured c -> ks = max(c), F0 = c / max(c) (exact where the half vector is near the normal, the
+    dict holds one scalar ks: at grazing ωi·h the colour drifts towards max(c));
+  - Diffuse and Glossy BSDFs summed by *Add Shader* / blended by *Mix Shader* nodes (constant Fac; one Glossy
+    roughness) -> ``cook_torrance`` with kd = the weighted Diffuse colours, the Glossy colours as above;
   - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
 * ``make_biscale_material``: ``mode="table"`` (what ``bake`` makes by default): the table itself as
   a tabulated-BRDF closure (``osl/tabulated_brdf.osl``, one narrow GGX closure per sample, light
@@ -101,11 +106,54 @@ def small_scale_material(mat) -> dict:
         return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(rough * rough, 1e-3),
                 "F0": tuple(float(x) for x in np.clip(f0, 0, 1)), "kd": tuple(float(x) for x in base * (1 - metal)),
                 "ks": 1.0}
-    if node is not None and node.bl_idname in ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic"):
-        rough = float(np.clip(_val(node, "Roughness", 0.5), 0, 1))
-        return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(rough * rough, 1e-3),
-                "F0": clamp(_val(node, "Color", (0.8, 0.8, 0.8, 1))), "kd": 0.0, "ks": 1.0}
+    terms = _shader_terms(node, 1.0)
+    if terms and all(n.bl_idname in _DIFFUSE + _GLOSSY for n, _ in terms):
+        rough = {round(float(np.clip(_val(n, "Roughness", 0.5), 0, 1)), 6) for n, _ in terms if n.bl_idname in _GLOSSY}
+        if len(rough) == 1:    # Cycles: Σ w (Diffuse colour / π) + Σ w Glossy colour · D G / (4 cos cos), no Fresnel
+            kd = sum((w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms
+                      if n.bl_idname in _DIFFUSE), np.zeros(3))
+            ks = sum(w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms
+                     if n.bl_idname in _GLOSSY)
+            ks = np.clip(ks, 0.0, 1.0)
+            top = float(ks.max())
+            r = rough.pop()
+            return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(r * r, 1e-3),
+                    "F0": tuple(float(x) for x in (ks / top if top > 0 else np.ones(3))), "ks": top,
+                    "kd": clamp(kd)}
+        if not rough:
+            kd = sum(w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms)
+            return {"model": "lambert", "albedo": clamp(kd)}
     return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
+
+
+_DIFFUSE = ("ShaderNodeBsdfDiffuse",)
+_GLOSSY = ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")
+
+
+def _shader_terms(node, weight: float, depth: int = 0):
+    """[(BSDF node, weight)] that ``node`` sums: Add Shader adds its inputs, Mix Shader with an unlinked Fac f
+    weights them (1 - f, f); None when a linked Fac, a node group or a loop (depth > 16) is in the way."""
+    if node is None or depth > 16:
+        return None
+    if node.bl_idname == "NodeReroute":
+        return _shader_terms(node.inputs[0].links[0].from_node if node.inputs[0].is_linked else None, weight, depth + 1)
+    if node.bl_idname == "ShaderNodeAddShader":
+        pairs = [(s, weight) for s in list(node.inputs)[:2]]
+    elif node.bl_idname == "ShaderNodeMixShader":
+        if node.inputs[0].is_linked:
+            return None
+        f = float(np.clip(node.inputs[0].default_value, 0.0, 1.0))
+        pairs = [(node.inputs[1], weight * (1.0 - f)), (node.inputs[2], weight * f)]
+    else:
+        return [(node, weight)]
+    out = []
+    for sock, w in pairs:
+        if sock.is_linked and w > 0:
+            t = _shader_terms(sock.links[0].from_node, w, depth + 1)
+            if t is None:
+                return None
+            out += t
+    return out
 
 
 MODES = ("table", "fit", "reference")
