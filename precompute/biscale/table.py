@@ -36,7 +36,7 @@ from .geometry import face_geometry, is_closed_surface
 from .visibility import visibility_matrix
 
 __all__ = ["to_tabulated", "tabulate_tile", "closure_res", "table_dir_res", "sharpest_alpha", "MIN_DIR_RES",
-           "MAX_DIR_RES", "CLOSURE_RES", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
+           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
            "mirror_symmetric", "EVENT_FACETS"]
 
 #: Resolution of tiles with only rough / diffuse materials (the reference mode's default).
@@ -46,10 +46,20 @@ MIN_DIR_RES = 10
 MAX_DIR_RES = 14
 #: Largest resolution whose anisotropic table fits a shader (3 res⁴ floats <= MAX_FLOATS).
 MAX_SHADER_DIR_RES = int((MAX_FLOATS / 3) ** 0.25)
+#: Largest direction resolution of the closure's table made by ``tabulate_tile`` (3 res² x n_o floats <=
+#: ``tabulated_brdf.MAX_TABLE_FLOATS``; above ``MAX_FLOATS`` it renders through the node graph on every path).
+MAX_CLOSURE_RES = 24
 #: Smallest direction resolution of the closure's table made by ``tabulate_tile`` (bilinear error
 #: ~ cell²: pyramid tile, 35° view, lamp direction: -4.1 % at the bake's 10, -1.9 % at 16, -1.1 % at 19
-#: against the ray-traced tile, measured).
-CLOSURE_RES = MAX_SHADER_DIR_RES
+#: against the ray-traced tile, measured; the lamp's highlight on the groove's GGX α 0.2 wall seen at
+#: θo 80° needs 23: ``bench/out/biscale_truth_svm_views.md``).
+CLOSURE_RES = 23
+#: View nodes per axis of the closure's view grid (``tile_view_grid``): 25 x 25 keeps the graph's F atlas
+#: (n_o (res + 2) texels tall) within ``tabulated_svm.MAX_IMAGE_SIDE`` 16384 at ``CLOSURE_RES``.
+VIEW_NODES = 25
+#: Node density of the view grid (``view_grid_nodes(grazing=...)``): 2.5 x denser beyond |a| = 65° (nodes
+#: ~4° apart over 65-85°, ~10° below): the bright grazing side of a glossy wall moves fast with the view.
+VIEW_GRAZING = (math.radians(65.0), 2.5)
 #: Facets per block of the visibility products (memory: _CHUNK x res² floats).
 _CHUNK = 32768
 #: Most distinct facet normals summed exactly; beyond it the normals are splatted onto the bake's grid.
@@ -102,8 +112,8 @@ def to_tabulated(brdf) -> TabulatedBRDF:
 
 def closure_res(dir_res: int) -> int:
     """Direction resolution of the closure's table for a bake at ``dir_res``: max(CLOSURE_RES,
-    dir_res + 2), at most ``MAX_SHADER_DIR_RES`` (what a shader holds, 3 res⁴ <= MAX_FLOATS)."""
-    return int(min(MAX_SHADER_DIR_RES, max(CLOSURE_RES, int(dir_res) + 2)))
+    dir_res + 2), at most ``MAX_CLOSURE_RES``."""
+    return int(min(MAX_CLOSURE_RES, max(CLOSURE_RES, int(dir_res) + 2)))
 
 
 def _event_sample(tile, n: int):
@@ -247,10 +257,12 @@ def view_events(tile, axis: int, step_deg: float = EVENT_STEP_DEG, limit_deg: fl
     return np.sort(np.array(out))
 
 
-def tile_view_grid(tile, n_a: int = CLOSURE_RES, n_b: int = CLOSURE_RES):
+def tile_view_grid(tile, n_a: int = VIEW_NODES, n_b: int = VIEW_NODES, grazing=VIEW_GRAZING):
     """View grid (view_a, view_b) (radians) of the closure table for ``tile`` (``BiscaleTile``): ``n_a`` x
-    ``n_b`` nodes over ±85° with the tile's visibility events (``view_events``) on nodes."""
-    return (view_grid_nodes(int(n_a), view_events(tile, 0)), view_grid_nodes(int(n_b), view_events(tile, 1)))
+    ``n_b`` nodes over ±85° with the tile's visibility events (``view_events``) on nodes, ``grazing``
+    (``view_grid_nodes``: denser beyond 65°; None: even spacing, the 19 x 19 grid of earlier bakes)."""
+    return (view_grid_nodes(int(n_a), view_events(tile, 0), grazing=grazing),
+            view_grid_nodes(int(n_b), view_events(tile, 1), grazing=grazing))
 
 
 def _normal_groups(tile):
@@ -283,8 +295,8 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None) -> Tabulat
     res² directions plus, per (material, colour, normal) group, a (res² x S_g) @ (S_g x res²) product
     and one BRDF evaluation on res⁴ pairs.  Returns an anisotropic ``TabulatedBRDF``."""
     res = closure_res(tile.opts["dir_res"]) if res is None else int(res)
-    if not 2 <= res <= MAX_SHADER_DIR_RES:
-        raise ValueError(f"res: the table closure holds direction resolutions 2..{MAX_SHADER_DIR_RES}, got {res}")
+    if not 2 <= res <= MAX_CLOSURE_RES:
+        raise ValueError(f"res: the table closure holds direction resolutions 2..{MAX_CLOSURE_RES}, got {res}")
     if not isinstance(materials, (list, tuple)) or len(materials) == 0:
         raise ValueError("materials: expected a non-empty list of material dicts")
     if tile.tile.face_material.max() >= len(materials):
