@@ -48,17 +48,19 @@ MAX_DIR_RES = 14
 MAX_SHADER_DIR_RES = int((MAX_FLOATS / 3) ** 0.25)
 #: Largest direction resolution of the closure's table made by ``tabulate_tile`` (3 res² x n_o floats <=
 #: ``tabulated_brdf.MAX_TABLE_FLOATS``; above ``MAX_FLOATS`` it renders through the node graph on every path).
-MAX_CLOSURE_RES = 24
+MAX_CLOSURE_RES = 40
 #: Smallest direction resolution of the closure's table made by ``tabulate_tile`` (bilinear error
 #: ~ cell²: pyramid tile, 35° view, lamp direction: -4.1 % at the bake's 10, -1.9 % at 16, -1.1 % at 19
 #: against the ray-traced tile, measured; the lamp's highlight on the groove's GGX α 0.2 wall seen at
-#: θo 80° needs 23: ``bench/out/biscale_truth_svm_views.md``).
-CLOSURE_RES = 23
-#: View nodes per axis of the closure's view grid (``tile_view_grid``): 25 x 25 keeps the graph's F atlas
-#: (n_o (res + 2) texels tall) within ``tabulated_svm.MAX_IMAGE_SIDE`` 16384 at ``CLOSURE_RES``.
-VIEW_NODES = 25
+#: θo 75-85° from the lamp's side, a sun in the bench lamp's direction, view node at the view: -2.7 / -1.2 /
+#: -0.1 / 0.0 % at 19 / 23 / 27 / 31, the glossy pyramid at 78/200 -3.5 / -2.6 / -2.2 / -1.8 %:
+#: ``bench/out/biscale_truth_svm_views.md``).
+CLOSURE_RES = 31
+#: View nodes per axis of the closure's view grid (``tile_view_grid``; the graph's F atlas is 2D for view
+#: grids: (31 x 33)² texels at ``CLOSURE_RES``).
+VIEW_NODES = 31
 #: Node density of the view grid (``view_grid_nodes(grazing=...)``): 2.5 x denser beyond |a| = 65° (nodes
-#: ~4° apart over 65-85°, ~10° below): the bright grazing side of a glossy wall moves fast with the view.
+#: ~3° apart over 65-85°, ~8° below): the bright grazing side of a glossy wall moves fast with the view.
 VIEW_GRAZING = (math.radians(65.0), 2.5)
 #: Facets per block of the visibility products (memory: _CHUNK x res² floats).
 _CHUNK = 32768

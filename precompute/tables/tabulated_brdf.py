@@ -115,9 +115,9 @@ MAX_RES = 48
 #: render through the node graph on every path (``node_groups.tabulated_svm``: images; Cycles compiles its
 #: builtin nodes for OSL too), up to ``MAX_TABLE_FLOATS``.
 MAX_FLOATS = 400_000
-#: Largest table of any closure (floats in F; 8 MB as float32): the node graph's images bound it too
+#: Largest table of any closure (floats in F; 16 MB as float32): the node graph's images bound it too
 #: (``tabulated_svm.fits``).
-MAX_TABLE_FLOATS = 2_000_000
+MAX_TABLE_FLOATS = 4_000_000
 #: Fraction of the proposal spread over all cells ∝ solid angle (bounds the weights).
 DEFENSIVE = 0.02
 #: Bins of the view-grid guide over (-π/2, π/2) (``view_guide``).
@@ -1422,7 +1422,9 @@ def svm_images(tb: ClosureTables) -> dict:
     - ``"F"`` (n_o (res+2), res+2): tile o = rows [o (res+2), (o+1)(res+2)), texel (o (res+2) + 1 + a, 1 + b)
       = RGB F[a res + b, o] (ωi cell a along s, b along t), bordered by a copy of its edge texels so that
       a Linear lookup at ((1 + ck + h_t) / (res+2), (o (res+2) + 1 + rk + h_s) / H) is the clamped bilinear
-      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile;
+      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile.  View grids: a 2D atlas
+      (NB (res+2), NA (res+2)), node o = ia NB + ib in tile column ia, row ib (``svm_atlas_tile``): texel
+      (ib (res+2) + 1 + a, ia (res+2) + 1 + b), so the image side grows as √n_o and dense view grids fit;
     - ``"V"`` (view grids only; 2, ``SVM_VIEW_GUIDE``): row 0 R = the guide x(a) of ``view_a``, row 1 G = that of
       ``view_b`` (``svm_view_guide``; read Linear at heights 1/4 and 3/4, the rows' centres, the sum of the two
       colours is (xa, xb, 0)); other channels 0;
@@ -1439,8 +1441,13 @@ def svm_images(tb: ClosureTables) -> dict:
     a[..., 3] = np.take_along_axis(inv, alias, 1) - inv
     F = tb.F.astype(np.float64).reshape(res, res, n_o, 3).transpose(2, 0, 1, 3)        # (o, a, b, rgb)
     F = np.pad(F, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
-    f = np.zeros((n_o * (res + 2), res + 2, 4))
-    f[..., :3] = F.reshape(n_o * (res + 2), res + 2, 3)
+    R = res + 2
+    f = np.zeros(svm_atlas_shape(tb) + (4,))
+    if getattr(tb, "view_a", None) is not None:     # tile (ia, ib) at column ia, row ib
+        NA, NB = len(tb.view_a), len(tb.view_b)
+        f[..., :3] = F.reshape(NA, NB, R, R, 3).transpose(1, 2, 0, 3, 4).reshape(NB * R, NA * R, 3)
+    else:
+        f[..., :3] = F.reshape(n_o * R, R, 3)
     out = {"A": a.astype(np.float32), "F": f.astype(np.float32)}
     if getattr(tb, "view_a", None) is not None:
         v = np.zeros((2, SVM_VIEW_GUIDE, 4), np.float32)
@@ -1451,6 +1458,23 @@ def svm_images(tb: ClosureTables) -> dict:
         k[0, :, :3] = tb.ks_view
         out["K"] = k
     return out
+
+
+def svm_atlas_shape(tb: ClosureTables) -> tuple:
+    """(rows, cols) of the "F" atlas (``svm_images``): view grids (NB (res+2), NA (res+2)), else (n_o (res+2), res+2)."""
+    R = tb.res + 2
+    if getattr(tb, "view_a", None) is not None:
+        return (len(tb.view_b) * R, len(tb.view_a) * R)
+    return (tb.n_o * R, R)
+
+
+def svm_atlas_tile(tb: ClosureTables, o) -> tuple:
+    """Tile (column, row) of ωo node(s) ``o`` in the "F" atlas: view grids (o // NB, o % NB), else (0, o)."""
+    o = np.asarray(o)
+    if getattr(tb, "view_a", None) is not None:
+        nb = len(tb.view_b)
+        return o // nb, o % nb
+    return np.zeros_like(o), o
 
 
 def texture_closest(img, x, y) -> np.ndarray:
@@ -1547,7 +1571,9 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     ck = k - res * rk
     g0, g1 = ck + u[:, 3], rk + u[:, 4]
     Fimg = images["F"]
-    f = texture_linear(Fimg, (1.0 + g0) / Fimg.shape[1], (o * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
+    tx, ty = svm_atlas_tile(tb, o)
+    f = texture_linear(Fimg, (tx * (res + 2) + 1.0 + g0) / Fimg.shape[1],
+                       (ty * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
     qx, qy = Z * ((g0 + g1) * cell / 2 - 1.0), Z * (g1 - g0) * cell / 2
     qz = 1.0 - np.abs(qx) - np.abs(qy)
     if tb.iso:                                      # the frame turned about n so that ωo has azimuth 0

@@ -109,7 +109,7 @@ def test_bake_operator_makes_the_table_by_default(addon, scene):
         m = target.data.materials[0]
         assert m["biscale_mode"] == "table" and m["tabulated_res"] == btable.closure_res(6)   # the finer table
         assert not m.cycles.use_bump_map_correction
-        # the default table (ωi 23², 25 x 25 view nodes: 991,875 floats) is above what OSL compiles: the graph
+        # the default table (ωi 31², 31 x 31 view nodes: 2,770,563 floats) is above what OSL compiles: the graph
         # renders it on every path, Cycles SVM and OSL (no script, no switch), reading the view grid's guide image
         assert m["tabulated_svm"] == "table" and m["tabulated_osl"] == "graph"
         assert "Scratch Render Path" not in m.node_tree.nodes

@@ -1,5 +1,5 @@
 """Tables above ``tabulated_brdf.MAX_FLOATS`` (what an OSL array literal compiles; the bi-scale bake's default
-table, ωi 23² x 25 x 25 view nodes, is one): they render through the node graph on every path, Cycles SVM and
+table, ωi 31² x 31 x 31 view nodes, is one): they render through the node graph on every path, Cycles SVM and
 Cycles OSL (Cycles compiles the graph's builtin nodes for OSL; no script node), and EEVEE's output takes the
 graph's EEVEE variant.  Checked: the wiring, a white furnace on SVM and on OSL against the table's directional
 albedo, SVM = OSL, and the errors (OSL source refused by name, no half material when the graph cannot hold it)."""
@@ -24,6 +24,36 @@ def large():
                                        view_b=tb.view_grid_nodes(25, grazing=g))
     assert B.table.size > tb.MAX_FLOATS
     return B
+
+
+def test_view_grid_atlas_is_2d_and_its_linear_lookup_is_each_tiles_bilinear(large):
+    """View grids: the F atlas is a 2D grid of padded tiles (node o = ia NB + ib in column ia, row ib), so its
+    sides grow as √n_o (25 x 25 nodes at ωi 23²: 625 x 625 texels instead of 15,625 x 25).  Cycles' Linear rule
+    at the graph's coordinate ((ia (res+2) + 1 + t-index) / W, (ib (res+2) + 1 + s-index) / H) equals the clamped
+    bilinear interpolation of node o's table for targets anywhere in a cell, edges included; reading the
+    transposed tile (ib, ia) instead misses (the table is not symmetric in a, b)."""
+    T = tb.closure_tables(large)
+    res, n_o = T.res, T.n_o
+    img = tb.svm_images(T)["F"]
+    assert img.shape[:2] == tb.svm_atlas_shape(T) == (25 * (res + 2), 25 * (res + 2))
+    rng = np.random.default_rng(6)
+    n = 20000
+    o, k = rng.integers(0, n_o, n), rng.integers(0, res * res, n)
+    ht, hs = rng.random(n), rng.random(n)
+    ht[:200], hs[:200] = 0.0, 1.0 - 1e-7
+    rk, ck = k // res, k % res
+    tx, ty = tb.svm_atlas_tile(T, o)
+    np.testing.assert_array_equal(tx * 25 + ty, o)
+    r0, r1, fr = tb._lin_taps(rk + hs - 0.5, res)
+    c0, c1, fc = tb._lin_taps(ck + ht - 0.5, res)
+    F = T.F.astype(np.float64)
+    want = (((1 - fr) * (1 - fc))[:, None] * F[r0 * res + c0, o] + ((1 - fr) * fc)[:, None] * F[r0 * res + c1, o]
+            + (fr * (1 - fc))[:, None] * F[r1 * res + c0, o] + (fr * fc)[:, None] * F[r1 * res + c1, o])
+    R = res + 2
+    got = tb.texture_linear(img, (tx * R + 1 + ck + ht) / img.shape[1], (ty * R + 1 + rk + hs) / img.shape[0])[:, :3]
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * F.max())
+    bad = tb.texture_linear(img, (ty * R + 1 + ck + ht) / img.shape[1], (tx * R + 1 + rk + hs) / img.shape[0])[:, :3]
+    assert np.abs(bad - want).max() > 0.05 * F.max()
 
 
 @pytest.fixture
