@@ -296,13 +296,17 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None) -> Tabulat
 
     (1/sr, RGB), with V ray cast for the fine directions and a_v (eq. 10) from the same visibility;
     made reciprocal as the bake ((T + Tᵀ)/2, i.e. num / 2 x (1 / (a_v(ωo) cos θi) + 1 / (a_v(ωi) cos θo)),
-    num the symmetric sum).  ``tile``: ``BiscaleTile`` (its facets, colour weights
+    num the symmetric sum).  ``res`` default: ``closure_res`` on a view grid, at most ``MAX_SHADER_DIR_RES`` (19) on
+    the hemi-octahedral ωo grid.  ``tile``: ``BiscaleTile`` (its facets, colour weights
     and groups), ``materials``: the small-scale material dicts.  ``view``: ωo on the hemi-octahedral grid
     (None), on a view grid (view_a, view_b) of projected view angles, or "auto" (``tile_view_grid``: the
     tile's visibility events on nodes; ``tabulated_brdf`` docstring).  Cost: one visibility pass over
     res² directions plus, per (material, colour, normal) group, a (res² x S_g) @ (S_g x res²) product
     and one BRDF evaluation on res⁴ pairs.  Returns an anisotropic ``TabulatedBRDF``."""
-    res = closure_res(tile.opts["dir_res"]) if res is None else int(res)
+    if res is None:     # hemi-octahedral ωo (view None): at most what OSL compiles (its graph atlas is n_o (res + 2) tall)
+        res = closure_res(tile.opts["dir_res"]) if view is not None else min(closure_res(tile.opts["dir_res"]),
+                                                                              MAX_SHADER_DIR_RES)
+    res = int(res)
     if not 2 <= res <= MAX_CLOSURE_RES:
         raise ValueError(f"res: the table closure holds direction resolutions 2..{MAX_CLOSURE_RES}, got {res}")
     if not isinstance(materials, (list, tuple)) or len(materials) == 0:
