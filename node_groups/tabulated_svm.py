@@ -54,16 +54,16 @@ from .scratch_svm import _data_image, _G
 
 GROUP_PREFIX = "Scratch: Tabulated BRDF "
 IMAGE_PREFIX = "Scratch tabulated "
-VERSION = 3
+VERSION = 4
 #: largest image side the graph uses (GPU textures and EEVEE: 16384 on common hardware)
 MAX_IMAGE_SIDE = 16384
 
 
 def fits(tb: tbm.ClosureTables) -> bool:
     """True if the graph can render the table: its images stay within ``MAX_IMAGE_SIDE`` (the alias rows are
-    res² wide, the F atlas n_o (res + 2) tall).  Every ωo grid is drawn: uniform θo, the hemi-octahedral grid,
+    res² wide and n_o tall, the F atlas n_o (res + 2) tall; view grids: NB (res + 2) x NA (res + 2), a 2D atlas).  Every ωo grid is drawn: uniform θo, the hemi-octahedral grid,
     and view grids (``view_a`` / ``view_b``, the bi-scale bake's default) through the guide image "V"."""
-    return tb.res * tb.res <= MAX_IMAGE_SIDE and tb.n_o * (tb.res + 2) <= MAX_IMAGE_SIDE
+    return tb.res * tb.res <= MAX_IMAGE_SIDE and tb.n_o <= MAX_IMAGE_SIDE and max(tbm.svm_atlas_shape(tb)) <= MAX_IMAGE_SIDE
 
 
 def table_hash(tb: tbm.ClosureTables) -> str:
@@ -230,11 +230,13 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
     # (ck + h_t, rk + h_s, -) = (lo, 0, 0) + rk (-res, 1, 0) + jitter, ck = lo - res rk
     gv = g.madd(rk, (-float(res), 1.0, 0.0), g.madd(lo, (1.0, 0.0, 0.0), jit))
     # f: Linear lookup in node o's padded tile
-    W, H = res + 2, n_o * (res + 2)
-    if eevee:       # texel space (1 + g0, o (res + 2) + 1 + g1)
-        f_rgb = _closest_bilinear(g, imgs["F"], g.madd(o, (0.0, res + 2.0, 0.0), g.vmath("ADD", gv, (1.0, 1.0, 0.0))), W, H)
+    H, W = tbm.svm_atlas_shape(tb)
+    grid2d = getattr(tb, "view_a", None) is not None and not tb.iso
+    tile, step = (rc, (res + 2.0, res + 2.0, 0.0)) if grid2d else (o, (0.0, res + 2.0, 0.0))   # view grids: tile (ia, ib)
+    if eevee:       # texel space (1 + g0, o (res + 2) + 1 + g1); view grids (ia (res + 2) + 1 + g0, ib (res + 2) + 1 + g1)
+        f_rgb = _closest_bilinear(g, imgs["F"], g.madd(tile, step, g.vmath("ADD", gv, (1.0, 1.0, 0.0))), W, H)
     else:
-        off = g.madd(o, (0.0, (res + 2.0) / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
+        off = g.madd(tile, (step[0] / W, step[1] / H, 0.0), (1.0 / W, 1.0 / H, 0.0))
         tf = g.node("ShaderNodeTexImage", image=imgs["F"], interpolation="Linear", extension="EXTEND")
         g._set(tf.inputs["Vector"], g.madd(gv, (1.0 / W, 1.0 / H, 0.0), off))
         f_rgb = tf.outputs["Color"]

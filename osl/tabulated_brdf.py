@@ -6,7 +6,7 @@ shader (``osl.specialise``); the sampling, its density and the table layout are 
 """
 from __future__ import annotations
 
-from ..precompute.tables.tabulated_brdf import MAX_FLOATS, VIEW_GUIDE_BINS, closure_tables, view_guide  # noqa: F401
+from ..precompute.tables.tabulated_brdf import MAX_FLOATS, VIEW_GUIDE_BINS, closure_tables, view_guide
 from . import const_array, specialise
 
 
@@ -19,6 +19,10 @@ def generate(brdf, name: str = "tabulated_brdf", alpha: float | None = None, flo
     GDIST defined when ks > 0)."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"name: expected an OSL identifier, got {name!r}")
+    size = getattr(getattr(brdf, "table", None), "size", 0)
+    if size > MAX_FLOATS:
+        raise ValueError(f"table: {size} floats; at most {MAX_FLOATS} are compiled into an OSL shader (larger "
+                         f"tables render through the node graph, tabulated_material)")
     tb = closure_tables(brdf, alpha, floor)
     D = tb.res * tb.res
     tables = (const_array("F", tb.F.ravel()) + const_array("CDF", tb.cdf.ravel())

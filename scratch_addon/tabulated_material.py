@@ -79,12 +79,23 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
     the glossy floor when it takes >= ``GLOSSY_SHARE_MIN`` of the albedo; "glossy", "diffuse", "none" / False;
     custom properties ``tabulated_floor``: kd, ``tabulated_glossy_floor``: (ks R, G, B, α_g), zeros when none (ks: the
     largest over the views when it varies with θo), ``tabulated_glossy_floor_dist``: "ggx" / "beckmann" / "").
+    Tables above ``MAX_FLOATS`` (what an OSL array literal compiles) render through the graph under OSL as well
+    (``tabulated_osl`` = "graph"; no script node: Cycles compiles the graph's builtin nodes for OSL); the bi-scale
+    bake's default table (ωi 31², 31 x 31 view nodes, 2,770,563 floats) is one.
     Raises ValueError (nothing created) for tables that cannot be compiled."""
     if not all(hasattr(brdf, a) for a in ("table", "res", "iso", "view_nodes")):   # duck-typed: TDs may
         raise ValueError(f"brdf: expected a TabulatedBRDF, got {type(brdf).__name__}")  # import it by another name
-    src = tabulated_osl.generate(brdf, alpha=alpha, floor=floor)      # ValueError before anything is created
-    tables = tabulated_brdf.closure_tables(brdf, alpha, floor)
+    tables = tabulated_brdf.closure_tables(brdf, alpha, floor)       # ValueError before anything is created
     use_table = bool(svm_table) and tabulated_svm.fits(tables)
+    # tables above what an OSL array literal compiles render through the node graph on every path (Cycles
+    # compiles builtin nodes for OSL too): no script, no render-path switch
+    graph_only = brdf.table.size > tabulated_osl.MAX_FLOATS
+    if graph_only and not use_table:
+        raise ValueError(f"table: {brdf.table.size} floats exceed what OSL compiles ({tabulated_osl.MAX_FLOATS}) and "
+                         + ("svm_table is False" if not svm_table else "its images exceed "
+                            f"{tabulated_svm.MAX_IMAGE_SIDE} texels")
+                         + ": lower the resolution or the view nodes")
+    src = None if graph_only else tabulated_osl.generate(brdf, alpha=alpha, floor=floor)
     ee_table = use_table and bool(eevee_table)
     # the least-squares twin only where a path renders it ("skip what a scene doesn't need": it is the
     # import's costliest step after the table itself and nothing reads it when SVM and EEVEE render the table)
@@ -96,7 +107,7 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
         fitted = None if ee_table else svm_twin(tree) if svm_twin is not None else glossy_twin_surface(tree, twin)
         svm = table_surface(tree, tables) if use_table else fitted
         eevee = table_surface(tree, tables, (-300, -200), eevee=True) if ee_table else fitted
-        osl = tabulated_script(mat, src)
+        osl = None if src is None else tabulated_script(mat, src)
     except BaseException:
         bpy.data.materials.remove(mat)
         for ng in set(bpy.data.node_groups) - n_groups:
@@ -106,6 +117,7 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
         raise
     render_paths.link_surface(tree, svm, osl, tree.nodes["Material Output"], eevee_socket=eevee)
     mat["tabulated_svm"] = "table" if use_table else "fit"
+    mat["tabulated_osl"] = "graph" if src is None else "script"   # what Cycles OSL renders
     mat["tabulated_eevee"] = "table" if ee_table else "fit"
     mat.cycles.use_bump_map_correction = False
     mat["scratch_addon_kind"] = kind

@@ -22,6 +22,12 @@ bake's default): a groove hides its floor progressively from θo = 32° to 54° 
 ωi grid, env 0.5 + 0.5 ωi + the bench's area lamp): θo/φo 60/20 lamp part +5.3 % with the 19² hemi-
 octahedral nodes, +0.2 % on the 19 x 19 view grid; env + lamp within 0.6 % at 0/0, 35/0, 60/90, 60/20
 (hemi-octahedral: up to 1.9 %).
+
+Grazing views (issue 16 item 2, "at every view"): the lamp's highlight on a glossy wall seen at θo 75-85° moves fast with
+the view and is sharp in ωi, so the bake's table is ωi 31² (``CLOSURE_RES``) on 31 x 31 view nodes 2.5x denser beyond
+65° (``VIEW_NODES``, ``VIEW_GRAZING``): 2,770,563 floats, above ``MAX_FLOATS``, rendered through the node graph on every
+path (``scratch_addon.tabulated_material``).  Explicit-geometry renders (SVM, 256 spp, ``bench/out/biscale_truth_svm_views.md``):
+groove 80/180 5.5 -> 2.8 %, pyramid 80/0 3.4 -> 1.9 % (seed 0); the groove at 78/200 still misses by 3.8 %.
 """
 from __future__ import annotations
 
@@ -36,7 +42,7 @@ from .geometry import face_geometry, is_closed_surface
 from .visibility import visibility_matrix
 
 __all__ = ["to_tabulated", "tabulate_tile", "closure_res", "table_dir_res", "sharpest_alpha", "MIN_DIR_RES",
-           "MAX_DIR_RES", "CLOSURE_RES", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
+           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
            "mirror_symmetric", "EVENT_FACETS"]
 
 #: Resolution of tiles with only rough / diffuse materials (the reference mode's default).
@@ -46,10 +52,22 @@ MIN_DIR_RES = 10
 MAX_DIR_RES = 14
 #: Largest resolution whose anisotropic table fits a shader (3 res⁴ floats <= MAX_FLOATS).
 MAX_SHADER_DIR_RES = int((MAX_FLOATS / 3) ** 0.25)
+#: Largest direction resolution of the closure's table made by ``tabulate_tile`` (3 res² x n_o floats <=
+#: ``tabulated_brdf.MAX_TABLE_FLOATS``; above ``MAX_FLOATS`` it renders through the node graph on every path).
+MAX_CLOSURE_RES = 40
 #: Smallest direction resolution of the closure's table made by ``tabulate_tile`` (bilinear error
 #: ~ cell²: pyramid tile, 35° view, lamp direction: -4.1 % at the bake's 10, -1.9 % at 16, -1.1 % at 19
-#: against the ray-traced tile, measured).
-CLOSURE_RES = MAX_SHADER_DIR_RES
+#: against the ray-traced tile, measured; the lamp's highlight on the groove's GGX α 0.2 wall seen at
+#: θo 75-85° from the lamp's side, a sun in the bench lamp's direction, view node at the view: -2.7 / -1.2 /
+#: -0.1 / 0.0 % at 19 / 23 / 27 / 31, the glossy pyramid at 78/200 -3.5 / -2.6 / -2.2 / -1.8 %:
+#: ``bench/out/biscale_truth_svm_views.md``).
+CLOSURE_RES = 31
+#: View nodes per axis of the closure's view grid (``tile_view_grid``; the graph's F atlas is 2D for view
+#: grids: (31 x 33)² texels at ``CLOSURE_RES``).
+VIEW_NODES = 31
+#: Node density of the view grid (``view_grid_nodes(grazing=...)``): 2.5 x denser beyond |a| = 65° (nodes
+#: ~3° apart over 65-85°, ~8° below): the bright grazing side of a glossy wall moves fast with the view.
+VIEW_GRAZING = (math.radians(65.0), 2.5)
 #: Facets per block of the visibility products (memory: _CHUNK x res² floats).
 _CHUNK = 32768
 #: Most distinct facet normals summed exactly; beyond it the normals are splatted onto the bake's grid.
@@ -102,8 +120,8 @@ def to_tabulated(brdf) -> TabulatedBRDF:
 
 def closure_res(dir_res: int) -> int:
     """Direction resolution of the closure's table for a bake at ``dir_res``: max(CLOSURE_RES,
-    dir_res + 2), at most ``MAX_SHADER_DIR_RES`` (what a shader holds, 3 res⁴ <= MAX_FLOATS)."""
-    return int(min(MAX_SHADER_DIR_RES, max(CLOSURE_RES, int(dir_res) + 2)))
+    dir_res + 2), at most ``MAX_CLOSURE_RES``."""
+    return int(min(MAX_CLOSURE_RES, max(CLOSURE_RES, int(dir_res) + 2)))
 
 
 def _event_sample(tile, n: int):
@@ -247,10 +265,12 @@ def view_events(tile, axis: int, step_deg: float = EVENT_STEP_DEG, limit_deg: fl
     return np.sort(np.array(out))
 
 
-def tile_view_grid(tile, n_a: int = CLOSURE_RES, n_b: int = CLOSURE_RES):
+def tile_view_grid(tile, n_a: int = VIEW_NODES, n_b: int = VIEW_NODES, grazing=VIEW_GRAZING):
     """View grid (view_a, view_b) (radians) of the closure table for ``tile`` (``BiscaleTile``): ``n_a`` x
-    ``n_b`` nodes over ±85° with the tile's visibility events (``view_events``) on nodes."""
-    return (view_grid_nodes(int(n_a), view_events(tile, 0)), view_grid_nodes(int(n_b), view_events(tile, 1)))
+    ``n_b`` nodes over ±85° with the tile's visibility events (``view_events``) on nodes, ``grazing``
+    (``view_grid_nodes``: denser beyond 65°; None: even spacing, the 19 x 19 grid of earlier bakes)."""
+    return (view_grid_nodes(int(n_a), view_events(tile, 0), grazing=grazing),
+            view_grid_nodes(int(n_b), view_events(tile, 1), grazing=grazing))
 
 
 def _normal_groups(tile):
@@ -276,15 +296,19 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None) -> Tabulat
 
     (1/sr, RGB), with V ray cast for the fine directions and a_v (eq. 10) from the same visibility;
     made reciprocal as the bake ((T + Tᵀ)/2, i.e. num / 2 x (1 / (a_v(ωo) cos θi) + 1 / (a_v(ωi) cos θo)),
-    num the symmetric sum).  ``tile``: ``BiscaleTile`` (its facets, colour weights
+    num the symmetric sum).  ``res`` default: ``closure_res`` on a view grid, at most ``MAX_SHADER_DIR_RES`` (19) on
+    the hemi-octahedral ωo grid.  ``tile``: ``BiscaleTile`` (its facets, colour weights
     and groups), ``materials``: the small-scale material dicts.  ``view``: ωo on the hemi-octahedral grid
     (None), on a view grid (view_a, view_b) of projected view angles, or "auto" (``tile_view_grid``: the
     tile's visibility events on nodes; ``tabulated_brdf`` docstring).  Cost: one visibility pass over
     res² directions plus, per (material, colour, normal) group, a (res² x S_g) @ (S_g x res²) product
     and one BRDF evaluation on res⁴ pairs.  Returns an anisotropic ``TabulatedBRDF``."""
-    res = closure_res(tile.opts["dir_res"]) if res is None else int(res)
-    if not 2 <= res <= MAX_SHADER_DIR_RES:
-        raise ValueError(f"res: the table closure holds direction resolutions 2..{MAX_SHADER_DIR_RES}, got {res}")
+    if res is None:     # hemi-octahedral ωo (view None): at most what OSL compiles (its graph atlas is n_o (res + 2) tall)
+        res = closure_res(tile.opts["dir_res"]) if view is not None else min(closure_res(tile.opts["dir_res"]),
+                                                                              MAX_SHADER_DIR_RES)
+    res = int(res)
+    if not 2 <= res <= MAX_CLOSURE_RES:
+        raise ValueError(f"res: the table closure holds direction resolutions 2..{MAX_CLOSURE_RES}, got {res}")
     if not isinstance(materials, (list, tuple)) or len(materials) == 0:
         raise ValueError("materials: expected a non-empty list of material dicts")
     if tile.tile.face_material.max() >= len(materials):

@@ -102,7 +102,7 @@ from .alias import alias_pmf, alias_tables
 
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
-           "MAX_RES", "MAX_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
+           "MAX_RES", "MAX_FLOATS", "MAX_TABLE_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
            "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS",
            "lambert_nodes", "floor_split", "closure_albedo",
            "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
@@ -111,8 +111,13 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
 
 #: Largest ωi grid side.
 MAX_RES = 48
-#: Largest table compiled into a shader (floats in F): keeps the generated source below ~10 MB.
+#: Largest table compiled into a shader (floats in F): keeps the generated source below ~10 MB.  Larger tables
+#: render through the node graph on every path (``node_groups.tabulated_svm``: images; Cycles compiles its
+#: builtin nodes for OSL too), up to ``MAX_TABLE_FLOATS``.
 MAX_FLOATS = 400_000
+#: Largest table of any closure (floats in F; 16 MB as float32): the node graph's images bound it too
+#: (``tabulated_svm.fits``).
+MAX_TABLE_FLOATS = 4_000_000
 #: Fraction of the proposal spread over all cells ∝ solid angle (bounds the weights).
 DEFENSIVE = 0.02
 #: Bins of the view-grid guide over (-π/2, π/2) (``view_guide``).
@@ -222,12 +227,86 @@ def view_guide(nodes, bins: int = VIEW_GUIDE_BINS) -> np.ndarray:
     return np.clip(np.searchsorted(nodes, edges, side="right") - 1, 0, len(nodes) - 2).astype(np.int32)
 
 
-def view_grid_nodes(n: int, events=(), limit: float = np.radians(85.0)) -> np.ndarray:
+def _grazing_mass(x, grazing):
+    """Cumulative node density M(x) = ∫_0^x ρ (odd in x) of ``view_grid_nodes``: ρ = 1 for |a| < a_g, ``ratio``
+    beyond (``grazing`` = (a_g radians, ratio); None: ρ = 1)."""
+    x = np.asarray(x, np.float64)
+    if grazing is None:
+        return x
+    ag, r = float(grazing[0]), float(grazing[1])
+    ax = np.abs(x)
+    return np.sign(x) * np.where(ax < ag, ax, ag + r * (ax - ag))
+
+
+def _grazing_mass_inv(m, grazing):
+    m = np.asarray(m, np.float64)
+    if grazing is None:
+        return m
+    ag, r = float(grazing[0]), float(grazing[1])
+    am = np.abs(m)
+    return np.sign(m) * np.where(am < ag, am, ag + (am - ag) / r)
+
+
+def _symmetric_largest_remainder(share, mids, free: int) -> np.ndarray:
+    """Integer node counts per gap summing to ``free`` (largest remainder of ``share``); ties (remainders within
+    1e-7) go first to the gap nearest the middle (|mid|), and mirror-image gaps (equal remainder and |mid|) are
+    served together or not at all, so a symmetric set of gaps gets a symmetric allocation whenever one exists
+    (an odd leftover with no middle gap has none: then the nearer-to-middle, lower-index gap takes it)."""
+    k = np.floor(share + 1e-9).astype(int)
+    rem = share - k
+    am = np.abs(np.asarray(mids, np.float64))
+    tie = 1e-7 * max(1.0, float(np.max(share)) if len(share) else 1.0)
+    rem = np.where(np.abs(rem - np.round(rem, 6)) < tie, np.round(rem, 6), rem)   # equal shares compare equal
+    am = np.round(am, 6)
+    left0 = int(free - k.sum())
+    order = np.lexsort((np.arange(len(share)), am, -rem))
+    groups, seen = [], np.zeros(len(share), bool)
+    for i in order:                      # tie groups (mirror-image gaps) in order of remainder, middle first
+        if not seen[i]:
+            grp = np.flatnonzero((np.abs(rem - rem[i]) < tie) & (am == am[i]) & ~seen)
+            seen[grp] = True
+            groups.append(grp)
+
+    def greedy(parity: bool):
+        kk, left = k.copy(), left0
+        if parity:                       # symmetric gaps: the odd node goes to the one unpaired (middle) gap
+            singles = [g for g in groups if len(g) == 1]
+            if left % 2 == 1 and singles:
+                kk[singles[0]] += 1
+                left -= 1
+        for g in groups:
+            if parity and len(g) == 1:
+                continue
+            if 0 < len(g) <= left:
+                kk[g] += 1
+                left -= len(g)
+        return kk, left
+
+    kk, left = greedy(False)
+    if left:
+        kk, left = greedy(True)
+    for i in order:                      # no symmetric completion exists: the first in order takes the rest
+        if left <= 0:
+            break
+        if kk[i] == k[i]:
+            kk[i] += 1
+            left -= 1
+    return kk
+
+
+def view_grid_nodes(n: int, events=(), limit: float = np.radians(85.0), grazing=None) -> np.ndarray:
     """``n`` increasing view angles (radians) over [-limit, limit] with every event angle in ``events``
     (|e| < limit) on a node: the events and the two ends are fixed, the remaining nodes go to the gaps in
-    proportion to their widths (largest remainder), evenly spaced in each gap.  ``n`` must hold the ends and
-    the events (ValueError otherwise); events closer than 1e-3 rad merge."""
+    proportion to their node mass (largest remainder; ties to the gaps nearest a = 0, mirror-image gaps
+    together: symmetric events give symmetric nodes), spaced evenly in that mass inside each gap.  The mass is
+    the angle itself (even spacing), or with ``grazing`` = (a_g, ratio) (radians, >= 1) ``ratio`` x denser
+    beyond |a| = a_g (``GRAZING``: the bright grazing side of a glossy tile's wall needs nodes ~4° apart over
+    65-85°, ``bench/out/biscale_truth_svm_views.md``).  ``n`` must hold the ends and the events (ValueError
+    otherwise); events closer than 1e-3 rad merge."""
     validation.check_range("n", n, 2, 256)
+    if grazing is not None:
+        validation.check_range("grazing angle", grazing[0], 0.0, float(limit))
+        validation.check_range("grazing ratio", grazing[1], 1.0, 16.0)
     ev = np.sort(np.asarray(events, np.float64).ravel()) if len(events) else np.zeros(0)
     ev = ev[np.abs(ev) < limit - 1e-3]
     fixed = [-limit]
@@ -240,14 +319,14 @@ def view_grid_nodes(n: int, events=(), limit: float = np.radians(85.0)) -> np.nd
     fixed = np.array(fixed)
     if len(fixed) > n:
         raise ValueError(f"n: {len(fixed)} view nodes are fixed (ends and events), got n = {n}")
-    gaps = np.diff(fixed)
+    mfix = _grazing_mass(fixed, grazing)
+    gaps = np.diff(mfix)
     free = int(n) - len(fixed)
-    share = gaps / gaps.sum() * free
-    k = np.floor(share).astype(int)
-    k[np.argsort(-(share - k))[: free - k.sum()]] += 1
+    k = _symmetric_largest_remainder(gaps / gaps.sum() * free, 0.5 * (fixed[:-1] + fixed[1:]), free)
     out = [fixed[:1]]
-    for g0, g1, m in zip(fixed[:-1], fixed[1:], k):
-        out.append(g0 + (g1 - g0) * np.arange(1, m + 2) / (m + 1))
+    for g0, g1, m, a1 in zip(mfix[:-1], mfix[1:], k, fixed[1:]):
+        inner = _grazing_mass_inv(g0 + (g1 - g0) * np.arange(1, m + 1) / (m + 1), grazing)
+        out.append(np.concatenate([inner, [a1]]))
     return np.concatenate(out)
 
 
@@ -1058,8 +1137,8 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor=True) 
     half = bool(getattr(brdf, "half", False))
     extent = float(getattr(brdf, "extent", 1.0)) if half else 1.0
     alpha = default_alpha(res, extent) if alpha is None else validation.check_range("alpha", alpha, 2e-5, 0.5)
-    if brdf.table.size > MAX_FLOATS:
-        raise ValueError(f"table: {brdf.table.size} floats; at most {MAX_FLOATS} are compiled into a shader "
+    if brdf.table.size > MAX_TABLE_FLOATS:
+        raise ValueError(f"table: {brdf.table.size} floats; a closure holds at most {MAX_TABLE_FLOATS} "
                          f"(lower res or n_theta)")
     parts = floor_parts(brdf, floor)
     kd, brdf = parts.kd, parts.residual
@@ -1343,7 +1422,9 @@ def svm_images(tb: ClosureTables) -> dict:
     - ``"F"`` (n_o (res+2), res+2): tile o = rows [o (res+2), (o+1)(res+2)), texel (o (res+2) + 1 + a, 1 + b)
       = RGB F[a res + b, o] (ωi cell a along s, b along t), bordered by a copy of its edge texels so that
       a Linear lookup at ((1 + ck + h_t) / (res+2), (o (res+2) + 1 + rk + h_s) / H) is the clamped bilinear
-      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile;
+      interpolation of ``sample`` inside node o's tile and never reads a neighbour tile.  View grids: a 2D atlas
+      (NB (res+2), NA (res+2)), node o = ia NB + ib in tile column ia, row ib (``svm_atlas_tile``): texel
+      (ib (res+2) + 1 + a, ia (res+2) + 1 + b), so the image side grows as √n_o and dense view grids fit;
     - ``"V"`` (view grids only; 2, ``SVM_VIEW_GUIDE``): row 0 R = the guide x(a) of ``view_a``, row 1 G = that of
       ``view_b`` (``svm_view_guide``; read Linear at heights 1/4 and 3/4, the rows' centres, the sum of the two
       colours is (xa, xb, 0)); other channels 0;
@@ -1360,8 +1441,13 @@ def svm_images(tb: ClosureTables) -> dict:
     a[..., 3] = np.take_along_axis(inv, alias, 1) - inv
     F = tb.F.astype(np.float64).reshape(res, res, n_o, 3).transpose(2, 0, 1, 3)        # (o, a, b, rgb)
     F = np.pad(F, ((0, 0), (1, 1), (1, 1), (0, 0)), mode="edge")
-    f = np.zeros((n_o * (res + 2), res + 2, 4))
-    f[..., :3] = F.reshape(n_o * (res + 2), res + 2, 3)
+    R = res + 2
+    f = np.zeros(svm_atlas_shape(tb) + (4,))
+    if getattr(tb, "view_a", None) is not None:     # tile (ia, ib) at column ia, row ib
+        NA, NB = len(tb.view_a), len(tb.view_b)
+        f[..., :3] = F.reshape(NA, NB, R, R, 3).transpose(1, 2, 0, 3, 4).reshape(NB * R, NA * R, 3)
+    else:
+        f[..., :3] = F.reshape(n_o * R, R, 3)
     out = {"A": a.astype(np.float32), "F": f.astype(np.float32)}
     if getattr(tb, "view_a", None) is not None:
         v = np.zeros((2, SVM_VIEW_GUIDE, 4), np.float32)
@@ -1372,6 +1458,23 @@ def svm_images(tb: ClosureTables) -> dict:
         k[0, :, :3] = tb.ks_view
         out["K"] = k
     return out
+
+
+def svm_atlas_shape(tb: ClosureTables) -> tuple:
+    """(rows, cols) of the "F" atlas (``svm_images``): view grids (NB (res+2), NA (res+2)), else (n_o (res+2), res+2)."""
+    R = tb.res + 2
+    if getattr(tb, "view_a", None) is not None:
+        return (len(tb.view_b) * R, len(tb.view_a) * R)
+    return (tb.n_o * R, R)
+
+
+def svm_atlas_tile(tb: ClosureTables, o) -> tuple:
+    """Tile (column, row) of ωo node(s) ``o`` in the "F" atlas: view grids (o // NB, o % NB), else (0, o)."""
+    o = np.asarray(o)
+    if getattr(tb, "view_a", None) is not None:
+        nb = len(tb.view_b)
+        return o // nb, o % nb
+    return np.zeros_like(o), o
 
 
 def texture_closest(img, x, y) -> np.ndarray:
@@ -1468,7 +1571,9 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     ck = k - res * rk
     g0, g1 = ck + u[:, 3], rk + u[:, 4]
     Fimg = images["F"]
-    f = texture_linear(Fimg, (1.0 + g0) / Fimg.shape[1], (o * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
+    tx, ty = svm_atlas_tile(tb, o)
+    f = texture_linear(Fimg, (tx * (res + 2) + 1.0 + g0) / Fimg.shape[1],
+                       (ty * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
     qx, qy = Z * ((g0 + g1) * cell / 2 - 1.0), Z * (g1 - g0) * cell / 2
     qz = 1.0 - np.abs(qx) - np.abs(qy)
     if tb.iso:                                      # the frame turned about n so that ωo has azimuth 0

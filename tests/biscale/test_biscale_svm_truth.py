@@ -13,7 +13,8 @@ import pytest
 
 
 def _groove_scene(addon):
-    """The groove tile of ``bench/biscale_truth`` baked with ``tabulate_tile(view="auto")`` (2000 facets, seed 0),
+    """The groove tile of ``bench/biscale_truth`` baked with ``tabulate_tile`` on a 19 x 19 view grid with its events
+    (ωi 19², 2000 facets, seed 0: a table the OSL script holds),
     its material, the same table's graph with the mirrored view's nodes (``_break="view"``), on a plane in the
     bench's scene (direction-coded world + area lamp, NEE on).  Returns (bench module, table, a view -> {"svm",
     "osl", "broken"} frame means (mean, standard error) function)."""
@@ -33,7 +34,10 @@ def _groove_scene(addon):
     factory, kw, mats = bench.TILES["groove (diffuse + glossy)"]
     tile = getattr(geo, factory)(**kw)
     bt = eff.BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=2000, dir_res=10, seed=0)
-    table = btab.tabulate_tile(bt, mats, view="auto")
+    # a table OSL compiles (ωi 19², 19 x 19 even view nodes with the events: the bake's size before session 8), so
+    # that the two implementations are compared; the bake's default (ωi 31², 31 x 31) is above MAX_FLOATS and
+    # renders through the graph on OSL too (tests/tables/test_tabulated_large.py)
+    table = btab.tabulate_tile(bt, mats, res=19, view=btab.tile_view_grid(bt, 19, 19, None))
     m = tm.make_tabulated_material(table, "groove view grid")
     assert m["tabulated_svm"] == "table"
     broken = bpy.data.materials.new("groove broken view")

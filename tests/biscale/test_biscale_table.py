@@ -65,7 +65,7 @@ def test_fine_table_is_the_facet_sum_at_its_nodes(brdf):
     bwd = brute_force_fr_at(tile, MATS, d[o], d[i]) / d[o, 2:3]
     np.testing.assert_allclose(tab.table[i, o], 0.5 * (fwd + bwd), rtol=1e-4, atol=1e-6)
     with pytest.raises(ValueError, match="res"):
-        btable.tabulate_tile(tile, MATS, res=btable.MAX_SHADER_DIR_RES + 1)
+        btable.tabulate_tile(tile, MATS, res=btable.MAX_CLOSURE_RES + 1)
 
 
 def test_fine_table_removes_the_interpolation_error():
@@ -109,11 +109,13 @@ def test_bake_operator_makes_the_table_by_default(addon, scene):
         m = target.data.materials[0]
         assert m["biscale_mode"] == "table" and m["tabulated_res"] == btable.closure_res(6)   # the finer table
         assert not m.cycles.use_bump_map_correction
-        switch = m.node_tree.nodes["Scratch Render Path"]
-        assert switch.inputs[2].links[0].from_node.bl_idname == "ShaderNodeScript"
-        # Cycles SVM: the table graph reads the bake's view grid (events on nodes) through its guide image
-        assert m["tabulated_svm"] == "table"
-        svm_src = switch.inputs[1].links[0].from_node
+        # the default table (ωi 31², 31 x 31 view nodes: 2,770,563 floats) is above what OSL compiles: the graph
+        # renders it on every path, Cycles SVM and OSL (no script, no switch), reading the view grid's guide image
+        assert m["tabulated_svm"] == "table" and m["tabulated_osl"] == "graph"
+        assert "Scratch Render Path" not in m.node_tree.nodes
+        assert not any(n.bl_idname == "ShaderNodeScript" for n in m.node_tree.nodes)
+        out = next(n for n in m.node_tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial" and n.target == "CYCLES")
+        svm_src = out.inputs["Surface"].links[0].from_node
         assert svm_src.bl_idname == "ShaderNodeGroup" and svm_src.node_tree.name.startswith("Scratch: Tabulated BRDF ")
         eevee = m.node_tree.nodes["Material Output (EEVEE)"].inputs["Surface"].links[0].from_node
         assert eevee.node_tree.name.endswith(" EEVEE") and m["tabulated_eevee"] == "table"   # EEVEE: the table graph

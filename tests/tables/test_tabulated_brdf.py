@@ -8,6 +8,7 @@ import pytest
 from scipy import stats
 
 from scratch_materials.precompute.tables import tabulated_brdf as tb
+from scratch_materials.osl import tabulated_brdf as gen
 
 
 def ggx_plus_diffuse(alpha=0.25, ks=0.9, kd=(0.05, 0.1, 0.2)):
@@ -225,8 +226,10 @@ def test_errors():
     B = tb.TabulatedBRDF(np.ones((16, 16, 3)), 4)
     with pytest.raises(ValueError, match="alpha"):
         tb.closure_tables(B, alpha=0.0)
-    with pytest.raises(ValueError, match="table"):
-        tb.closure_tables(tb.TabulatedBRDF(np.ones((48 * 48, 256, 3)), 48, iso=True))
+    with pytest.raises(ValueError, match="table"):      # above MAX_FLOATS: no OSL source (the graph renders it)
+        gen.generate(tb.TabulatedBRDF(np.ones((48 * 48, 256, 3)), 48, iso=True))
+    with pytest.raises(ValueError, match="table"):      # above MAX_TABLE_FLOATS: no closure at all
+        tb.closure_tables(tb.TabulatedBRDF(np.ones((48 * 48, 600, 3)), 48, iso=True))
     with pytest.raises(ValueError, match="wo"):
         B.eval(np.ones((2, 3)), np.full((2, 3), np.inf))
     with pytest.raises(ValueError, match="f"):

@@ -137,3 +137,40 @@ def test_view_grid_furnace_in_cycles(addon, scene, render_dir):
         addon.render.configure_cycles(sc, samples=32, res=(32, 32), seed=1, osl=True, max_bounces=1)
         img, _ = addon.render.render_array(sc, str(render_dir))
         np.testing.assert_allclose(img.reshape(-1, 3).mean(0), a, rtol=0.015, err_msg=str(wo))
+
+
+def test_symmetric_events_give_symmetric_nodes():
+    """Mirror-image events (a groove's ±32°, ±54°, with or without ±80°; a pyramid's three pairs) give nodes
+    symmetric about a = 0 for every count, even and odd, with and without the grazing density: ties of the
+    largest remainder go to mirror-image gaps together (before: by gap index, 23 nodes on the groove with ±80°
+    gave -85, -82.5, -80 but 80, 85).  An event at 0 with an even count has no symmetric grid: still n
+    increasing nodes holding the event."""
+    r = math.radians
+    sets = [[-r(80), -r(53.97), -r(32.01), r(32.01), r(53.97), r(80)], [-r(53.97), -r(32.01), r(32.01), r(53.97)],
+            [-r(58.39), -r(51.34), -r(41.19), r(41.19), r(51.34), r(58.39)], []]
+    for ev in sets:
+        for n in range(len(ev) + 2, 40):
+            for g in (None, (r(65), 2.5)):
+                v = tb.view_grid_nodes(n, ev, grazing=g)
+                assert len(v) == n and np.all(np.diff(v) > 0)
+                np.testing.assert_allclose(v, -v[::-1], atol=1e-12, err_msg=f"n {n} events {np.degrees(ev)} {g}")
+    v = tb.view_grid_nodes(24, [0.0])
+    assert len(v) == 24 and np.min(np.abs(v)) < 1e-12
+    assert tb.view_grid_nodes(23, sets[0]).tolist() != tb.view_grid_nodes(23, sets[0][:3]).tolist()
+
+
+def test_grazing_density_puts_nodes_4_degrees_apart_beyond_65():
+    """The bi-scale bake's grid (``precompute.biscale.table``: 25 nodes, 2.5 x denser beyond 65°) with a groove's
+    events: every gap over 65-85° is <= 4.2° (the one across 65°: <= 4.8°), all <= 11°; the even grid of 19 (main's) has 10.3°
+    at the ends.  The density ratio and angle are checked by name."""
+    r = math.radians
+    ev = [-r(53.97), -r(32.01), r(32.01), r(53.97)]
+    v = np.degrees(tb.view_grid_nodes(25, ev, grazing=(r(65), 2.5)))
+    d = np.diff(v)
+    lo = np.minimum(np.abs(v[1:]), np.abs(v[:-1]))
+    assert d[lo >= 65].max() <= 4.2 and d[lo >= 63].max() <= 4.8 and d.max() <= 11.0, (v, d)
+    assert np.diff(np.degrees(tb.view_grid_nodes(19, ev)))[0] > 10.0
+    with pytest.raises(ValueError, match="grazing ratio"):
+        tb.view_grid_nodes(25, ev, grazing=(r(65), 0.5))
+    with pytest.raises(ValueError, match="grazing angle"):
+        tb.view_grid_nodes(25, ev, grazing=(r(95), 2.0))
