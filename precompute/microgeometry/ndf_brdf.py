@@ -25,10 +25,11 @@ from scipy.ndimage import convolve1d
 
 from .. import validation
 from ..tables import tabulated_brdf as tb
+from ..tables.prefilter import prefilter_cells
 from ..tables.tabulated_brdf import TabulatedBRDF
 from .ndf import NDFTable
 
-__all__ = ["smith_lambda", "ndf_brdf", "prefilter_cells", "table_layout", "MAX_HALF_RES"]
+__all__ = ["smith_lambda", "ndf_brdf", "table_layout", "MAX_HALF_RES"]
 
 #: Largest half-vector grid side of an anisotropic NDF table: res⁴ · 3 floats <= tabulated_brdf.MAX_FLOATS.
 MAX_HALF_RES = int((tb.MAX_FLOATS / 3) ** 0.25)
@@ -108,42 +109,13 @@ def table_layout(ndf: NDFTable, mass: float = 0.9995, max_res: int = MAX_HALF_RE
     return int(max_res), Z, float(sigma_min * max_res / (2.0 * Z))
 
 
-#: Cell average of the clamped bilinear interpolant of node values v, per axis: (v[j-1] + 6 v[j] + v[j+1]) / 8
-#: (the shader reconstructs f bilinearly between cell centres; ``tabulated_brdf.closure_tables`` uses the same).
-_CELL_AVERAGE = (0.125, 0.75, 0.125)
-
-
-def _cell_average_matrix(res: int) -> np.ndarray:
-    """(res, res) matrix A: cell averages = A @ node values along one axis (edges clamped as the shader)."""
-    A = np.zeros((res, res))
-    for j in range(res):
-        for d, w in zip((-1, 0, 1), _CELL_AVERAGE):
-            A[j, min(max(j + d, 0), res - 1)] += w
-    return A
-
-
-def prefilter_cells(rho: np.ndarray, res: int) -> np.ndarray:
-    """Node values (res², n_o, 3) whose bilinear reconstruction has the cell averages ``rho`` (res², n_o, 3):
-    the inverse of ``_CELL_AVERAGE`` along both half-vector axes, clamped at 0 (a sharp lobe's ringing) and
-    rescaled per (ωo node, channel) to the cell averages' mass.  Without it the reconstruction blurs the lobe
-    by the cell (second moments of the exit direction + ~cell²/4 per axis: +0.004 at normal view on a rough
-    brushed scan, half the distance to its explicit surface)."""
-    Ai = np.linalg.inv(_cell_average_matrix(res))
-    x = rho.reshape(res, res, *rho.shape[1:])
-    x = np.einsum("ij,jk...->ik...", Ai, x)
-    x = np.einsum("ij,kj...->ki...", Ai, x)
-    x = np.maximum(x, 0.0).reshape(rho.shape)
-    mass, got = rho.sum(0, keepdims=True), x.sum(0, keepdims=True)
-    return x * np.where(got > 0, mass / np.where(got > 0, got, 1.0), 0.0)
-
-
 def ndf_brdf(ndf: NDFTable, res: int | None = None, F=1.0, sub: int = 3, extent: float | None = None,
              prefilter: bool = True) -> TabulatedBRDF:
     """Anisotropic half-vector ``TabulatedBRDF`` (1/sr) of the microfacet BRDF of ``ndf`` (module
     docstring), reflectance ``F`` (scalar or RGB in [0, 1]).  ``res`` / ``extent``: the half-vector grid
     (default ``table_layout``: from the NDF's width); ``sub``: sub-points per cell axis for the G2 average
     (D is averaged at the NDF's own node spacing); ``prefilter``: node values whose bilinear reconstruction
-    keeps each cell's mass (``prefilter_cells``; False: the cell averages as node values, a blur by a cell)."""
+    keeps each cell's mass (``tables.prefilter.prefilter_cells``; False: the cell averages as node values, a blur by a cell)."""
     F = np.broadcast_to(np.asarray(F, np.float64), 3)
     if np.any(F < 0) or np.any(F > 1):
         raise ValueError(f"F: expected a reflectance in [0, 1], got {F.tolist()}")
