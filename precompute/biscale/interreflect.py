@@ -538,6 +538,18 @@ def resample_views(table: np.ndarray, res_from: int, view_a, view_b, res_to: int
     return np.einsum("ia,abc,jb->ijc", Wi, table, Wo, optimize=True)
 
 
+def resample_view_nodes(table: np.ndarray, view_a, view_b, wo_to) -> np.ndarray:
+    """The ωo axis of a (D, NA NB, 3) table on a view grid (``view_a``, ``view_b``) bilinearly resampled in the
+    view angles onto the directions ``wo_to`` (O, 3) (e.g. a finer view grid's nodes): (D, O, 3)."""
+    from ..tables.tabulated_brdf import view_taps
+
+    wo_to = np.asarray(wo_to, np.float64).reshape(-1, 3)
+    idx, wt = view_taps(wo_to, view_a, view_b)
+    Wo = np.zeros((len(wo_to), len(view_a) * len(view_b)))
+    np.add.at(Wo, (np.repeat(np.arange(len(wo_to)), idx.shape[1]), idx.ravel()), wt.ravel())
+    return np.einsum("abc,jb->ajc", table, Wo, optimize=True)
+
+
 def check_mode(interreflections):
     """``interreflections``: "auto", True / "on" or False / "off" -> "auto" | True | False (ValueError otherwise)."""
     v = interreflections.lower() if isinstance(interreflections, str) else interreflections

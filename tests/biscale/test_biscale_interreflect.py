@@ -159,11 +159,35 @@ def test_bake_adds_the_indirect_table(tmp_path):
                             normal_res=21, l_M=40)
     T = i_on["table"]                     # the closure's table has a view grid (the tile's events on nodes)
     assert T.view_a is not None and np.array_equal(T.view_a, i_off["table"].view_a)
-    ind, info = ir.tile_indirect(tile, GREY, True, view=T.view_nodes())   # computed at the view nodes
+    # traced on the coarser view grid of the same layout (bake.INDIRECT_VIEW_NODES), interpolated to the table's nodes
+    from scratch_materials.precompute.biscale import table as btable
+    from scratch_materials.precompute.tables.tabulated_brdf import view_directions
+
+    ca, cb = btable.tile_view_grid(tile, bake.INDIRECT_VIEW_NODES, bake.INDIRECT_VIEW_NODES)
+    assert len(ca) < len(T.view_a)
+    ind, info = ir.tile_indirect(tile, GREY, True, view=view_directions(ca, cb))
     assert info["seconds"] < 0.5 * i_on["seconds_indirect"] + 0.05      # memoised
+    ind = ir.resample_view_nodes(ind, ca, cb, T.view_nodes())
     np.testing.assert_allclose(on.table - off.table, ir.resample_views(ind, info["res"], T.view_a, T.view_b, 6),
                                atol=1e-12)
     np.testing.assert_allclose(T.table - i_off["table"].table, ir.resample_wi(ind, info["res"], T.res), atol=1e-12)
+
+
+def test_resample_view_nodes_is_identity_on_its_own_nodes_and_linear_between():
+    """``resample_view_nodes``: onto the grid's own nodes it is the identity; a table linear in the view angles is
+    reproduced exactly at other views (bilinear in (a, b)); views beyond the outermost nodes take the edge."""
+    from scratch_materials.precompute.tables.tabulated_brdf import view_angles, view_directions
+
+    va, vb = np.radians([-80.0, -30.0, 0.0, 45.0, 80.0]), np.radians([-70.0, 0.0, 20.0, 70.0])
+    rng = np.random.default_rng(2)
+    T = rng.random((9, len(va) * len(vb), 3))
+    np.testing.assert_allclose(ir.resample_view_nodes(T, va, vb, view_directions(va, vb)), T, atol=1e-12)
+    A, B = np.meshgrid(va, vb, indexing="ij")
+    lin = (0.3 + 0.2 * A - 0.1 * B).ravel()
+    wo = view_directions(np.radians([-60.0, 10.0, 33.0]), np.radians([-5.0, 50.0]))
+    ab = view_angles(wo)
+    got = ir.resample_view_nodes(np.broadcast_to(lin[None, :, None], (1, len(lin), 1)), va, vb, wo)[0, :, 0]
+    np.testing.assert_allclose(got, 0.3 + 0.2 * ab[:, 0] - 0.1 * ab[:, 1], atol=1e-12)
 
 
 def test_resample_is_identity_on_its_own_grid_and_keeps_constants():
