@@ -378,14 +378,22 @@ def is_periodic(heights) -> bool:
     """True if ``heights`` (2D, µm) tile seamlessly: no missing point, and the steps across both wrap-around
     seams (last column -> first, last row -> first) have an rms at most ``PERIODIC_SEAM_RATIO`` times that of
     the steps between interior neighbours along the same axis (synthetic FFT surfaces; not measured scans)."""
-    h = np.asarray(heights, dtype=np.float64)
-    if h.ndim != 2 or min(h.shape) < 4 or not np.all(np.isfinite(h)):
+    h = np.asarray(heights)
+    if h.ndim != 2 or min(h.shape) < 4 or h.dtype.kind not in "fiu":
         return False
-    for axis in (0, 1):
-        inner = np.diff(h, axis=axis)
-        seam = np.take(h, 0, axis=axis) - np.take(h, -1, axis=axis)
-        rms_inner = float(np.sqrt(np.mean(inner * inner)))
-        if not rms_inner > 0 or float(np.sqrt(np.mean(seam * seam))) > PERIODIC_SEAM_RATIO * rms_inner:
+    ny, nx = h.shape
+    sq = np.zeros(2)            # sums of squared neighbour steps along y and x, in row blocks (bounded memory)
+    for y0 in range(0, ny, 256):
+        blk = np.asarray(h[y0:min(y0 + 257, ny)], np.float64)
+        if not np.all(np.isfinite(blk)):
+            return False
+        sq[0] += float(np.sum(np.diff(blk, axis=0) ** 2))
+        sq[1] += float(np.sum(np.diff(blk[:256], axis=1) ** 2))
+    rms_inner = np.sqrt(sq / np.array([(ny - 1) * nx, ny * (nx - 1)]))
+    seams = (np.asarray(h[0], np.float64) - np.asarray(h[-1], np.float64),
+             np.asarray(h[:, 0], np.float64) - np.asarray(h[:, -1], np.float64))
+    for rms, seam in zip(rms_inner, seams):
+        if not rms > 0 or float(np.sqrt(np.mean(seam * seam))) > PERIODIC_SEAM_RATIO * rms:
             return False
     return True
 
