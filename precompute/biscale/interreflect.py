@@ -525,29 +525,29 @@ def resample_wi(table: np.ndarray, res_from: int, res_to: int) -> np.ndarray:
 def resample_views(table: np.ndarray, res_from: int, view_a, view_b, res_to: int) -> np.ndarray:
     """A (res_from², NA NB, 3) table whose ωo axis is a view grid (``tabulated_brdf`` docstring) resampled
     onto ``direction_grid(res_to)`` in ωi and ωo (bilinear in ωi's (s, t) and in the view angles)."""
-    from ..tables.tabulated_brdf import view_taps
-
     dirs = direction_grid(res_to)
     D = len(dirs)
     idx, wt = direction_bilinear(dirs, res_from)
     Wi = np.zeros((D, res_from * res_from))
     np.add.at(Wi, (np.repeat(np.arange(D), 4), idx.ravel()), wt.ravel())
-    idx, wt = view_taps(dirs, view_a, view_b)
-    Wo = np.zeros((D, len(view_a) * len(view_b)))
-    np.add.at(Wo, (np.repeat(np.arange(D), 4), idx.ravel()), wt.ravel())
-    return np.einsum("ia,abc,jb->ijc", Wi, table, Wo, optimize=True)
+    return np.einsum("ia,abc,jb->ijc", Wi, table, _view_weights(dirs, view_a, view_b), optimize=True)
+
+
+def _view_weights(wo_to, view_a, view_b) -> np.ndarray:
+    """(O, NA NB) bilinear weights of the directions ``wo_to`` (O, 3) on the view grid (``tabulated_brdf.view_taps``)."""
+    from ..tables.tabulated_brdf import view_taps
+
+    wo_to = np.asarray(wo_to, np.float64).reshape(-1, 3)
+    idx, wt = view_taps(wo_to, view_a, view_b)
+    W = np.zeros((len(wo_to), len(view_a) * len(view_b)))
+    np.add.at(W, (np.repeat(np.arange(len(wo_to)), idx.shape[1]), idx.ravel()), wt.ravel())
+    return W
 
 
 def resample_view_nodes(table: np.ndarray, view_a, view_b, wo_to) -> np.ndarray:
     """The ωo axis of a (D, NA NB, 3) table on a view grid (``view_a``, ``view_b``) bilinearly resampled in the
     view angles onto the directions ``wo_to`` (O, 3) (e.g. a finer view grid's nodes): (D, O, 3)."""
-    from ..tables.tabulated_brdf import view_taps
-
-    wo_to = np.asarray(wo_to, np.float64).reshape(-1, 3)
-    idx, wt = view_taps(wo_to, view_a, view_b)
-    Wo = np.zeros((len(wo_to), len(view_a) * len(view_b)))
-    np.add.at(Wo, (np.repeat(np.arange(len(wo_to)), idx.shape[1]), idx.ravel()), wt.ravel())
-    return np.einsum("abc,jb->ajc", table, Wo, optimize=True)
+    return np.einsum("abc,jb->ajc", table, _view_weights(wo_to, view_a, view_b), optimize=True)
 
 
 def check_mode(interreflections):

@@ -494,6 +494,14 @@ def _warm_allocator() -> None:
     np.empty(3 << 20)
 
 
+def _prepare_filtered(heights, pixel_um, detilt: bool, periodic, sigma_um) -> tuple[HeightField, Plane | None, int]:
+    """``_prepare`` for the σ filter: (height field, plane or None, wrap-around halo ``_periodic``).  A periodic
+    tile keeps no plane (its mean slope is 0; a plane fitted to one period would tilt the NDF) and none is fitted."""
+    hf = as_heightfield(heights, pixel_um)
+    wrap = _periodic(hf, periodic, sigma_um)
+    return hf, (fit_plane(hf.heights, hf.pixel_um) if detilt and not wrap else None), wrap
+
+
 def _periodic(hf: HeightField, periodic, sigma_um) -> int:
     """The wrap-around halo (pixels) of a periodic scan, 0 if the scan is treated as finite.  ``periodic``:
     False (the paper: the border's windows are one-sided), True, or "auto" (``heightfield.is_periodic``)."""
@@ -544,13 +552,8 @@ def _filtered_tiles(hf: HeightField, plane, sigma_um, min_weight: float, border_
     _warm_allocator()
 
     def job(core):
-        if wrap:
-            y0, y1, x0, x1 = core
-            b, c, ok = _block_slopes(hf, (y0 + wrap, y1 + wrap, x0 + wrap, x1 + wrap), sig_px, radius, min_weight,
-                                     dtype)
-        else:
-            b, c, ok = _block_slopes(hf, core, sig_px, radius, min_weight, dtype)
-        y0, y1, x0, x1 = core
+        y0, y1, x0, x1 = core     # scan pixels; + wrap in the padded field
+        b, c, ok = _block_slopes(hf, (y0 + wrap, y1 + wrap, x0 + wrap, x1 + wrap), sig_px, radius, min_weight, dtype)
         if nb:
             yy = np.arange(y0, y1)[:, None]
             xx = np.arange(x0, x1)[None, :]
@@ -587,10 +590,7 @@ def filtered_slopes(heights, pixel_um=None, sigma_um: float = 1.0, detilt: bool 
     the slopes agree with the float64 whole-field result to ~1e-6 of their spread, see the tests) with
     memory O(tile^2).  ``tile=None, dtype=np.float64`` is the whole-field float64 computation.
     """
-    hf, plane = _prepare(heights, pixel_um, detilt)
-    wrap = _periodic(hf, periodic, sigma_um)
-    if wrap:
-        plane = None   # a periodic tile has no tilt (its mean slope is 0); a fitted plane would tilt the NDF
+    hf, plane, wrap = _prepare_filtered(heights, pixel_um, detilt, periodic, sigma_um)
     ny, nx = hf.shape
     sx = np.zeros((ny, nx))
     sy = np.zeros((ny, nx))
@@ -618,7 +618,7 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
     including its float64 copy, ~1.5 s of CPU time; bench/out/microgeometry_scale.md).
     """
     resolution = _check_resolution(resolution)
-    hf, plane = _prepare(heights, pixel_um, detilt)
+    hf, plane, wrap = _prepare_filtered(heights, pixel_um, detilt, periodic, sigma_um)
     R = resolution
     flat = np.zeros(R * R)
     table = flat.reshape(R, R)
@@ -630,9 +630,6 @@ def filtered_ndf(heights, pixel_um=None, sigma_um: float = 1.0, resolution: int 
         return n_ok, list(_splat_cells(b, c, R))
 
     n = 0
-    wrap = _periodic(hf, periodic, sigma_um)
-    if wrap:
-        plane = None   # a periodic tile has no tilt (its mean slope is 0); a fitted plane would tilt the NDF
     for n_ok, cells in _filtered_tiles(hf, plane, sigma_um, 0.05, border_sigmas, tile, dtype, post=splat, wrap=wrap):
         n += n_ok
         for j, i, acc in cells:
