@@ -116,6 +116,8 @@ def ndf_brdf(ndf: NDFTable, res: int | None = None, F=1.0, sub: int = 3, extent:
     (default ``table_layout``: from the NDF's width); ``sub``: sub-points per cell axis for the G2 average
     (D is averaged at the NDF's own node spacing); ``prefilter``: node values whose bilinear reconstruction
     keeps each cell's mass (``tables.prefilter.prefilter_cells``; False: the cell averages as node values, a blur by a cell)."""
+    if not isinstance(prefilter, (bool, np.bool_)):
+        raise ValueError(f"prefilter: expected True or False, got {prefilter!r}")
     F = np.broadcast_to(np.asarray(F, np.float64), 3)
     if np.any(F < 0) or np.any(F > 1):
         raise ValueError(f"F: expected a reflectance in [0, 1], got {F.tolist()}")

@@ -236,5 +236,7 @@ def test_the_table_keeps_a_rough_scans_lobe_width():
         worst[prefilter] = max(errs)
     print(f"\n[rough scan NDF table] worst |Δ E[d²]| vs the fine NDF: prefiltered {worst[True]:.4f}, "
           f"cell averages {worst[False]:.4f}")
+    with pytest.raises(ValueError, match="prefilter"):
+        nb.ndf_brdf(N, prefilter="yes")
     assert worst[True] < 0.008, worst
     assert worst[False] > 0.012, worst      # the check can fail: the unfiltered table misses
