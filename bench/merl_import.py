@@ -15,6 +15,12 @@ Rounds interleave after / before (A/B/A/B), wall seconds in this process, median
 (read + fill, to_tabulated, energy check, twin, material) are timed once per round beside them.
 
     .venv/bin/python -m bench merl_import [--rounds 5] [--quick]
+
+``--auto``: the import's automatic resolution (``merl_ops.material_from_merl`` default: the grid from the file's
+peak, ``merl.auto_resolution``) against the old default 32² x 32, CPU seconds (``time.process_time``: the machine is
+shared) of a first import (the floor search's caches cleared each round), median over ``--rounds``; files: the two
+above and the merl_audit's gold (GGX α 0.05 conductor) and Beckmann α 0.1 + Lambert; writes
+``bench/out/merl_import_auto.md``.
 """
 from __future__ import annotations
 
@@ -49,7 +55,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="bench merl_import")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--quick", action="store_true", help="2 rounds, res 32 only")
+    ap.add_argument("--auto", action="store_true", help="automatic resolution vs the old default, CPU seconds")
     args = ap.parse_args(argv)
+    if args.auto:
+        return auto_main(2 if args.quick else args.rounds)
     rounds, sizes = (2, (32,)) if args.quick else (args.rounds, (24, 32, 48))
     blender(register=False)
     import bpy
@@ -120,6 +129,56 @@ def main(argv=None) -> int:
         lines.append(f"| {name} | {res} | {b:.3f} | {a:.3f} | {a / b:.2f} | {phm['read + fill']:.3f} | "
                      f"{phm['to_tabulated']:.3f} | {phm['energy check']:.3f} | {phm['twin']:.3f} | {phm['material']:.3f} |")
     path = out_path("merl_import.md")
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+    return 0
+
+
+def auto_main(rounds: int) -> int:
+    """``--auto``: CPU seconds of a first import at the automatic resolution vs the old default 32² x 32."""
+    from bench.merl_audit import beckmann_lambert, gold_ggx
+
+    blender(register=False)
+    import bpy
+    from scratch_materials.precompute.tables import merl, tabulated_brdf as tb
+    from scratch_materials.scratch_addon import merl_ops
+
+    def cold():
+        for cache in (tb._FLOOR_CACHE, tb._HEMI_ALBEDO, tb._ALBEDO_MEMO):
+            cache.clear()
+        tb._LOBES.update(layout=None, pairs=None, g={})
+
+    folder = tempfile.mkdtemp(prefix="bench_merl_")
+    files = _files(folder)
+    for name, f in (("gold (merl_audit)", gold_ggx), ("beckmann (merl_audit)", beckmann_lambert)):
+        files[name] = os.path.join(folder, name.split()[0] + ".binary")
+        merl.write_merl(files[name], merl.tabulate(f))
+    rows, load0 = [], os.getloadavg()[0]
+    merl_ops.material_from_merl(files["ggx_a0.2"], name="warm-up")
+    for name, path in files.items():
+        times = {"auto": [], "32": []}
+        for _ in range(rounds):
+            for label, kw in (("auto", {}), ("32", {"res": 32, "n_theta": 32})):
+                cold()
+                t0 = time.process_time()
+                mat = merl_ops.material_from_merl(path, name=label, **kw)
+                times[label].append(time.process_time() - t0)
+                if label == "auto":
+                    info = (mat["tabulated_res"], mat["merl_peak_width_deg"], mat["merl_sharper_than_table"],
+                            merl_ops.import_summary(mat))
+                bpy.data.materials.remove(mat)
+        med = {k: statistics.median(v) for k, v in times.items()}
+        rows.append((name, info, med))
+        print(f"{name}: auto {info[0]}² ({info[1]:.2f}°) {med['auto']:.2f} s CPU, 32² {med['32']:.2f} s CPU", flush=True)
+    lines = ["# MERL import time at the automatic resolution (bench/merl_import.py --auto)", "",
+             f"CPU seconds (`time.process_time`, all threads of the process) of a first import (the floor search's "
+             f"caches cleared), median of {rounds} rounds, auto and the old default 32² x 32 interleaved; load "
+             f"average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2 cores shared).", "",
+             "| file | peak half width | auto res (n_theta 32) | sharper than the cells | auto (s CPU) | 32² x 32 (s CPU) |",
+             "|---|---|---|---|---|---|"]
+    for name, (res, w, sharp, _), med in rows:
+        lines.append(f"| {name} | {w:.2f}° | {res}² | {'yes' if sharp else 'no'} | {med['auto']:.2f} | {med['32']:.2f} |")
+    path = out_path("merl_import_auto.md")
     path.write_text("\n".join(lines) + "\n")
     print(f"wrote {path}")
     return 0

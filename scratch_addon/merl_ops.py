@@ -49,25 +49,50 @@ def energy_check(table, brdf, floor=True) -> dict:
             "worst_rel": float(rel[np.argmax(np.abs(rel))])}
 
 
-def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: int = 32, progress=None,
+def import_resolution(table, res="auto", n_theta=None) -> dict:
+    """The table size of an import: ``res`` "auto" (or None): from the file's specular peak (``merl.lobe_width``,
+    ``merl.auto_resolution``: cells no wider than the peak's half width, 24..48), ``n_theta`` None: ``merl.AUTO_N_THETA``
+    (32); integers are explicit overrides (``res`` 4..48, ``n_theta`` 4..90).  Returns {"res", "n_theta", "auto",
+    "width" (the peak's half width, radians), "sharper" (the peak is narrower than the largest table's cells)}."""
+    width = merl.lobe_width(table)
+    auto = res is None or (isinstance(res, str) and res == "auto")
+    if auto:
+        res, sharper = merl.auto_resolution(width)
+    else:
+        if isinstance(res, str):
+            raise ValueError(f"res: expected 'auto' or an integer in [4, 48], got {res!r}")
+        res = int(validation.check_range("res", res, 4, 48))
+        sharper = merl.cell_angle(res) > merl.CELLS_PER_WIDTH * width
+    n_theta = merl.AUTO_N_THETA if n_theta is None else int(validation.check_range("n_theta", n_theta, 4, 90))
+    return {"res": int(res), "n_theta": n_theta, "auto": bool(auto), "width": float(width), "sharper": bool(sharper)}
+
+
+def material_from_merl(path, name: str | None = None, res="auto", n_theta: int | None = None, progress=None,
                        floor=True):
-    """Material of the MERL BRDF in ``path`` (``res`` x ``res`` ωi cells and ``n_theta`` view angles on
+    """Material of the MERL BRDF in ``path`` (``res`` x ``res`` half-vector cells and ``n_theta`` view angles on
     the closure's isotropic grid; missing bins take their measured neighbour's value, ``merl.fill_missing``).
+    ``res`` "auto" (default; None too): the grid follows the file's sharpness (``import_resolution``: cells no wider
+    than the specular peak's half width, 24..48; ``n_theta`` None: 32); an integer 4..48 is an explicit override.
+    What the table closure renders is deconvolved to the cells' averages (``merl.to_tabulated``).
     ``floor``: the BRDF's smooth part kd/π renders as a Diffuse closure and (True = "auto", or "glossy") a GGX /
     Beckmann lobe under its glossy part as a Glossy closure, only the rest through the table closure
     (``tabulated_brdf.floor_parts``: a point lamp then lights both at every sample); "diffuse": the Diffuse floor
     alone; False / "none": no floor.
     Custom properties ``merl_albedo_views`` / ``merl_albedo_table`` / ``merl_albedo_file``: the rendered
-    closure's and the file's directional albedo at those view angles (``energy_check``); what each render path
+    closure's and the file's directional albedo at those view angles (``energy_check``); ``merl_res_auto``,
+    ``merl_peak_width_deg`` (the peak's half width), ``merl_sharper_than_table``; what each render path
     shows: ``tabulated_svm`` / ``tabulated_eevee`` (``make_tabulated_material``).
     ValueError for unreadable / non-MERL files and out-of-range sizes; nothing is created then."""
-    validation.check_range("res", res, 4, 48)
-    validation.check_range("n_theta", n_theta, 4, 90)
+    if not (res is None or isinstance(res, str)):
+        validation.check_range("res", res, 4, 48)
+    if n_theta is not None:
+        validation.check_range("n_theta", n_theta, 4, 90)
     step = progress or (lambda f: None)
     step(0.0)
     table = merl.fill_missing(merl.read_merl(path))   # once: the table and the energy check read the same data
+    size = import_resolution(table, res, n_theta)
     step(0.4)
-    brdf = merl.to_tabulated(table, int(res), int(n_theta), fill=False)
+    brdf = merl.to_tabulated(table, size["res"], size["n_theta"], fill=False)
     step(0.7)
     check = energy_check(table, brdf, floor)
     step(0.8)
@@ -78,6 +103,9 @@ def material_from_merl(path, name: str | None = None, res: int = 32, n_theta: in
         mat["merl_albedo_views"] = check["views_deg"]
         mat["merl_albedo_table"] = check["table"]
         mat["merl_albedo_file"] = check["file"]
+        mat["merl_res_auto"] = size["auto"]
+        mat["merl_peak_width_deg"] = float(np.degrees(size["width"]))
+        mat["merl_sharper_than_table"] = size["sharper"]
     step(1.0)
     return mat
 
@@ -90,7 +118,13 @@ def import_summary(mat) -> str:
              f"the table in Cycles OSL; SVM: {paths.get(svm, svm)}; EEVEE: {paths.get(eevee, eevee)}")
     if "tabulated_twin_rel_l1" in mat:
         where += f" (twin fit error {100 * float(mat['tabulated_twin_rel_l1']):.0f} % rel. L1)"
-    text = f"{mat.get('tabulated_res', 0)}² directions, {where}"
+    res = int(mat.get("tabulated_res", 0))
+    text = f"{res}² directions"
+    if "merl_peak_width_deg" in mat:
+        w, cell = float(mat["merl_peak_width_deg"]), 90.0 / max(res, 1)
+        text += (" (auto" if mat.get("merl_res_auto") else " (set") + f": peak half width {w:.2g}°, cells {cell:.2g}°"
+        text += "; the peak is sharper than the cells: highlights blur)" if mat.get("merl_sharper_than_table") else ")"
+    text += f", {where}"
     if "merl_albedo_table" in mat:
         views, got, want = (list(mat[k]) for k in ("merl_albedo_views", "merl_albedo_table", "merl_albedo_file"))
         rel = [(g - w) / max(w, 1e-6) for g, w in zip(got, want)]
@@ -113,8 +147,12 @@ class SCRATCH_OT_import_merl(bpy.types.Operator):
 
     filepath: bpy.props.StringProperty(subtype="FILE_PATH")
     filter_glob: bpy.props.StringProperty(default="*.binary", options={"HIDDEN"})
+    auto_res: bpy.props.BoolProperty(name="Automatic Resolution", default=True,
+                                     description="Direction Resolution from the file's specular peak (cells no wider "
+                                                 "than its half width, 24-48); off: the value below")
     res: bpy.props.IntProperty(name="Direction Resolution", default=32, min=4, max=48,
-                               description="Light directions per side of the table (hemi-octahedral cells)")
+                               description="Half-vector cells per side of the table (hemi-octahedral); setting it "
+                                           "turns Automatic Resolution off")
     n_theta: bpy.props.IntProperty(name="View Angles", default=32, min=4, max=90)
 
     @classmethod
@@ -129,9 +167,13 @@ class SCRATCH_OT_import_merl(bpy.types.Operator):
 
     def execute(self, context):
         obj = context.active_object
+        props = self.properties
+        if props.is_property_set("res") and not props.is_property_set("auto_res"):
+            self.auto_res = False                      # a script's res=... is an explicit size, as before
         try:
             with progress(context) as update:
-                mat = material_from_merl(self.filepath, res=self.res, n_theta=self.n_theta, progress=update)
+                mat = material_from_merl(self.filepath, res="auto" if self.auto_res else self.res,
+                                         n_theta=self.n_theta, progress=update)
         except USER_ERRORS as exc:
             return report_error(self, exc, {"res": "Direction Resolution", "n_theta": "View Angles",
                                             "path": "File"})

@@ -92,13 +92,14 @@ over the ωo node (the chi-square oracle).  Units: directions are unit vectors i
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .. import validation
 from ..cycles import beckmann as _bk
 from .alias import alias_pmf, alias_tables
+from .prefilter import deconvolve_cells
 
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
@@ -1094,15 +1095,31 @@ def floor_parts(brdf: TabulatedBRDF, floor=True) -> FloorParts:
     mode = floor_mode(floor)
     if mode in ("diffuse", "none"):
         kd, r = floor_split(brdf, mode == "diffuse")
-        return FloorParts(kd, np.zeros(3), 0.0, r, mode, 0.0)
+        return _deconvolved(brdf, FloorParts(kd, np.zeros(3), 0.0, r, mode, 0.0))
     if mode == "auto":      # the glossy floor takes energy off the residual: none to take, no search
         kd, r = floor_split(brdf, True)
         diffuse = FloorParts(kd, np.zeros(3), 0.0, r, "diffuse", 0.0)
         E_f = _hemi_albedo(brdf)
         if E_f <= 0.0 or 1.0 - float(np.mean(kd)) / E_f < GLOSSY_SHARE_MIN:
-            return diffuse
+            return _deconvolved(brdf, diffuse)
     parts = glossy_floor_split(brdf, min_share=0.5 * GLOSSY_SHARE_MIN if mode == "auto" else 0.0)
-    return parts if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN else diffuse
+    return _deconvolved(brdf, parts if mode == "glossy" or parts.share >= GLOSSY_SHARE_MIN else diffuse)
+
+
+def _deconvolved(brdf: TabulatedBRDF, parts: FloorParts) -> FloorParts:
+    """``parts`` with its residual's node values deconvolved (``prefilter.deconvolve_cells``) when ``brdf`` holds
+    cell averages that ask for it (``info["deconvolve_residual"]``: MERL imports, ``merl.to_tabulated``): the floors
+    are split from the cell averages (they match them exactly), and the residual's bilinear reconstruction then
+    has its cell averages instead of a blur by about a cell (a gold GGX α 0.05 file at 48² x 32 in the merl_audit
+    scenes, numpy: worst view 1.8 -> 1.1 %).  Anything else: ``parts`` unchanged."""
+    info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    if not info.get("deconvolve_residual"):
+        return parts
+    r = parts.residual
+    va, vb = getattr(r, "view_a", None), getattr(r, "view_b", None)
+    vg = {} if va is None else {"view_a": va, "view_b": vb}
+    x = TabulatedBRDF(deconvolve_cells(r.table, r.res), r.res, r.iso, dict(r.info), r.half, r.extent, **vg)
+    return replace(parts, residual=x)
 
 
 def floor_eval(parts: FloorParts, wi, wo) -> np.ndarray:

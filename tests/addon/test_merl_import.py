@@ -28,11 +28,16 @@ def lambert(wi, wo):
     return np.full((len(wi), 3), 0.5 / np.pi)
 
 
+def ggx_sharp(wi, wo):
+    """A GGX α 0.04 (peak half width 1.5°: sharper than the old default's 2.8° cells) + a dim Lambert."""
+    return tb._ggx_unit(wi, wo, 0.04)[:, None] * np.array([0.9, 0.7, 0.4]) + 0.03 / np.pi
+
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("merl")
     out = {}
-    for name, f in (("ggx", ggx_lambert), ("lambert", lambert)):
+    for name, f in (("ggx", ggx_lambert), ("lambert", lambert), ("sharp", ggx_sharp)):
         out[name] = d / f"{name}.binary"
         merl.write_merl(out[name], merl.tabulate(f))
     return out
@@ -103,3 +108,34 @@ def test_reported_albedo_is_the_files_and_the_tables(addon, scene, files):
     np.testing.assert_allclose(list(mat["merl_albedo_table"]), want, rtol=0.015)
     summary = ops.import_summary(mat)
     assert "albedo at 0/45/70°" in summary and "% worst" in summary, summary
+
+
+def test_import_resolution_follows_the_file_and_keeps_explicit_sizes(addon, scene, files):
+    """The default import ("auto") picks the grid from the file's peak (``merl.auto_resolution``): the sharp file
+    through the operator's defaults gets the cap (48², flagged and reported as sharper than the cells), the broad
+    GGX α 0.2 file through the API the floor (24²); an explicit size stays what it was (API ``res=16``; the
+    operator's ``res=16`` from a script turns Automatic Resolution off, as the old operator honoured it); bad sizes
+    are ValueErrors naming ``res``.  On the old code the defaults gave 32² for both files."""
+    import bpy
+
+    ops = importlib.import_module(addon.__name__ + ".merl_ops")
+    broad = ops.material_from_merl(files["ggx"])
+    assert (broad["tabulated_res"], broad["merl_res_auto"], broad["merl_sharper_than_table"]) == \
+        (merl.AUTO_RES_MIN, True, False)
+    assert broad["merl_peak_width_deg"] == pytest.approx(np.degrees(merl.lobe_width(
+        merl.fill_missing(merl.read_merl(files["ggx"])))), rel=1e-9)
+    fixed = ops.material_from_merl(files["sharp"], res=16, n_theta=8)
+    assert (fixed["tabulated_res"], fixed["merl_res_auto"], fixed["merl_sharper_than_table"]) == (16, False, True)
+    for bad in ("fine", 2, 64):
+        with pytest.raises(ValueError, match="res"):
+            ops.material_from_merl(files["sharp"], res=bad)
+    addon.render.add_plane(scene)
+    obj = scene.objects["Plane"]
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.scratch.import_merl(filepath=str(files["sharp"]), res=16) == {"FINISHED"}
+    assert obj.active_material["tabulated_res"] == 16 and not obj.active_material["merl_res_auto"]
+    assert bpy.ops.scratch.import_merl(filepath=str(files["sharp"])) == {"FINISHED"}
+    mat = obj.active_material
+    assert (mat["tabulated_res"], mat["merl_res_auto"], mat["merl_sharper_than_table"]) == (merl.AUTO_RES_MAX, True, True)
+    summary = ops.import_summary(mat)
+    assert "48² directions (auto: peak half width 1.5°" in summary and "sharper than the cells" in summary, summary
