@@ -123,7 +123,7 @@ def import_summary(mat) -> str:
     if "merl_peak_width_deg" in mat:
         w, cell = float(mat["merl_peak_width_deg"]), 90.0 / max(res, 1)
         text += (" (auto" if mat.get("merl_res_auto") else " (set") + f": peak half width {w:.2g}°, cells {cell:.2g}°"
-        text += "; the peak is sharper than the cells: highlights blur)" if mat.get("merl_sharper_than_table") else ")"
+        text += "; the peak is sharper than the cells: highlights may blur)" if mat.get("merl_sharper_than_table") else ")"
     text += f", {where}"
     if "merl_albedo_table" in mat:
         views, got, want = (list(mat[k]) for k in ("merl_albedo_views", "merl_albedo_table", "merl_albedo_file"))
