@@ -38,6 +38,12 @@ TILES = {
                                    {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0,
                                     "ks": 0.8},
                                    {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+    # a user's default Glossy BSDF (Multiscatter GGX, Roughness 0.5, colour 0.8) as the groove's walls
+    "groove (default Glossy: Multiscatter GGX)": ("groove_tile", dict(depth=0.4),
+                                                  [{"model": "lambert", "albedo": 0.7},
+                                                   {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.25,
+                                                    "fresnel": "none", "multiscatter": True, "F0": 1.0, "ks": 0.8},
+                                                   {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
     "pyramid (glossy sides on diffuse floor)": ("pyramid_tile", dict(height=0.4, base=0.7),
                                                  [{"model": "lambert", "albedo": (0.7, 0.5, 0.3)},
                                                   {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.3,
