@@ -118,7 +118,7 @@ def small_scale_material(mat) -> dict:
     if terms and all(n.bl_idname in _DIFFUSE + _GLOSSY for n, _ in terms):
         lobe = {(round(float(np.clip(_val(n, "Roughness", 0.5), 0, 1)), 6), _GLOSSY_DIST.get(n.distribution, "ggx"))
                 for n, _ in terms if n.bl_idname in _GLOSSY}
-        if len(lobe) == 1:     # Cycles: Σ w (Diffuse colour / π) + Σ w Glossy colour · D G / (4 cos cos), no Fresnel
+        if len(lobe) == 1:     # Cycles: Σ w (Diffuse colour / π) + Σ w Glossy colour · D G / (4 cos cos)
             kd = sum((w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms
                       if n.bl_idname in _DIFFUSE), np.zeros(3))
             ks = sum(w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms

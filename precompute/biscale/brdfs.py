@@ -213,7 +213,7 @@ def _principled_lobes(mat) -> list:
         f0t = np.clip(f0 * tint, 0.0, 1.0)
         if eta != 1.0:                      # F = mix(f0 t, 1, s(c)), s the real curve's factor
             def s_c(ci, co, cio):
-                return pr._s_real(_half(ci, co, cio)[1], eta)
+                return pr.real_curve_s(_half(ci, co, cio)[1], eta)
             f0r = float(pr.F0_from_ior(eta))
             s_avg = float(np.clip((pr.fresnel_dielectric_Fss(eta) - f0r) / max(1.0 - f0r, 1e-12), 0.0, 1.0))
             Fss = f0t + (1.0 - f0t) * s_avg
@@ -316,7 +316,8 @@ def material_lobes(mat: dict) -> list[Lobe]:
             lobes.append(Lobe("lambert", _lambert, kd))
         if fresnel == "none":   # Cycles' Glossy BSDF: colour c = ks F0 at every angle
             c = np.asarray(F0) * ks
-            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F=1", _microfacet(alpha, dist, "none"), tuple(float(x) for x in c)))
+            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F=1", _microfacet(alpha, dist, "none"),
+                              tuple(float(x) for x in c)))
             if multi:           # + c Fms(c) f_ss (1 - E) / E  (Kulla & Conty 2017 appendix; Cycles 4.0+)
                 Ea = float(_multiscatter.ggx_E_avg(np.sqrt(alpha)))
                 Fms = c * Ea / (1.0 - c * (1.0 - Ea))

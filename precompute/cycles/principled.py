@@ -11,7 +11,8 @@ roughness or anisotropy (``principled_supported`` says which inputs that needs).
 - **dielectric specular** (weight 1 - m): f0 = ((η - 1)/(η + 1))², scaled by 2L when L != 0.5 and η re-derived from
   it; GGX with the generalized-Schlick Fresnel in its "real curve" mode: ``F(c) = mix(f0 t, 1, s(c))``,
   ``s(c) = saturate((F_η(c) - f0)/(1 - f0))`` with F_η the unpolarised dielectric Fresnel; Multiscatter: ``Fss =
-  mix(f0 t, 1, saturate((Fss_η - f0)/(1 - f0)))`` with Kulla & Conty's fit ``Fss_η = (η - 1)/(4.08567 + 1.00071 η)``;
+  mix(f0 t, 1, saturate((Fss_η - f0)/(1 - f0)))`` with Kulla & Conty's fit
+  ``Fss_η = (η - 1)/(4.08567 + 1.00071 η)``;
 - **diffuse** (Lambert, weight (1 - m) b): attenuated by the specular layer's albedo estimate,
   ``saturate(1 - max_c mix(f0 t_c, 1, S(r, μ, z)))`` (``closure_layering_weight``), S Cycles' ``ggx_gen_schlick_ior_s``
   table (16³ over rough, μ = the view's cosine, z = sqrt((η - 1)/(η + 1))): the mean of s(ωi·h) over the visible
@@ -30,7 +31,7 @@ import numpy as np
 from . import multiscatter
 
 __all__ = ["F0_from_ior", "ior_from_F0", "fresnel_dielectric", "fresnel_dielectric_Fss", "f82_tint_B",
-           "gen_schlick_ior_s", "dielectric_f0_eta", "principled_supported", "PRINCIPLED_DEFAULTS"]
+           "real_curve_s", "gen_schlick_ior_s", "dielectric_f0_eta", "principled_supported", "PRINCIPLED_DEFAULTS"]
 
 #: Cycles' ``ggx_gen_schlick_ior_s`` table size per axis (rough, μ, z)
 S_TABLE = 16
@@ -90,7 +91,7 @@ def dielectric_f0_eta(ior: float, specular_ior_level: float) -> tuple[float, flo
     return f0, eta
 
 
-def _s_real(cos_i, eta):
+def real_curve_s(cos_i, eta):
     """Generalized Schlick's "real curve" interpolation factor saturate((F_η(c) - F0_η)/(1 - F0_η))."""
     f0 = F0_from_ior(eta)
     return np.clip((fresnel_dielectric(cos_i, eta) - f0) / max(1.0 - f0, 1e-12), 0.0, 1.0)
@@ -109,7 +110,7 @@ def _s_slice(k: int, n: int = 48) -> np.ndarray:
     for i, r in enumerate(np.maximum(nodes, 1e-4)):
         h, view, lz = multiscatter.vndf_reflect(r * r, mu, u1, u2)
         vh = np.sum(view * h, -1)
-        out[i] = np.where(lz > 0, _s_real(vh, eta), 0.0).mean(1)
+        out[i] = np.where(lz > 0, real_curve_s(vh, eta), 0.0).mean(1)
     return out
 
 

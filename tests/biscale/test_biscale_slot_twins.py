@@ -61,7 +61,8 @@ def _dict_albedo(brdfs, tb, mat, theta):
 def test_glossy_slot_albedo_matches_cycles(addon, scene, render_dir, distribution):
     """Roughness 0.6, colour (0.9, 0.5, 0.2), views 0° and 72°: the baked dict's albedo within 1 % of Cycles' per
     channel (render noise ~0.1 %; the midpoint sum 0.2 %).  Multiscatter GGX: ``precompute.cycles.multiscatter``'s
-    E table (integrated here, not Cycles' shipped one) inside the comparison; single-scatter GGX would be 9-33 % dark."""
+    E table (integrated here, not Cycles' shipped one) inside the comparison; single-scatter GGX would be up to 16 %
+    dark here."""
     root = addon.__name__.rpartition(".")[0]
     bm = importlib.import_module(addon.__name__ + ".biscale_material")
     render = importlib.import_module(addon.__name__ + ".render")
