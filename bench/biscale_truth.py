@@ -45,7 +45,7 @@ TILES = {
                                                     "fresnel": "none", "multiscatter": True, "F0": 1.0, "ks": 0.8},
                                                    {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
     # Principled BSDFs (Multiscatter GGX, the node's default): a metal floor, dielectric walls
-    "pyramid (Principled: metal floor, dielectric sides)": (
+    "pyramid (Principled: metal floor and dielectric sides)": (
         "pyramid_tile", dict(height=0.4, base=0.7),
         [{"model": "principled", "base_color": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.4, "multiscatter": True},
          {"model": "principled", "base_color": (0.2, 0.5, 0.8), "metallic": 0.0, "roughness": 0.5, "multiscatter": True}]),
