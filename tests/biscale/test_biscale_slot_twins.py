@@ -126,3 +126,49 @@ def test_principled_slot_albedo_matches_cycles(addon, scene, render_dir, case):
         np.testing.assert_allclose(got, want, rtol=0.01, err_msg=f"{case} at {deg}°: dict {d}")
     coat = _principled_material(base, metal, rough, **{"Coat Weight": 0.5})
     assert bm.small_scale_material(coat)["model"] == "cook_torrance"
+
+
+def _dirn(theta_deg, phi_deg):
+    t, p = math.radians(theta_deg), math.radians(phi_deg)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+#: (view, light) θ/φ degrees: the lamp's glint on a floor seen at 55/300, off the glint, normal view, grazing mirror
+SUN_PAIRS = [((55, 300), (45, 120)), ((55, 300), (60, 100)), ((0, 0), (20, 90)), ((70, 0), (70, 180))]
+
+
+@pytest.mark.bpy
+@pytest.mark.render
+def test_slot_lobes_match_cycles_under_a_sun(addon, scene, render_dir):
+    """Pointwise, not only the albedo: a plane under a sun (angle 0, no world, max bounces 0: the image is
+    f(ωi, ωo) cos θi exactly) with a Multiscatter Glossy, a Principled metal and a Principled dielectric, at the
+    glint and off it: the baked dict within 0.5 % of Cycles per channel (measured: 1e-4)."""
+    import bpy
+    from mathutils import Vector
+
+    root = addon.__name__.rpartition(".")[0]
+    bm = importlib.import_module(addon.__name__ + ".biscale_material")
+    render = importlib.import_module(addon.__name__ + ".render")
+    brdfs = importlib.import_module(root + ".precompute.biscale.brdfs")
+    mats = [_glossy_material("MULTI_GGX", 0.5), _principled_material((0.9, 0.6, 0.3), 1.0, 0.4),
+            _principled_material((0.2, 0.5, 0.8), 0.0, 0.5)]
+    for m in mats:
+        d = bm.small_scale_material(m)
+        for (tv, pv), (tl, pl) in SUN_PAIRS:
+            for ob in list(scene.collection.objects):
+                scene.collection.objects.unlink(ob)
+            render.configure_cycles(scene, samples=16, res=(8, 8), max_bounces=0)
+            render.uniform_world(scene, strength=0.0)
+            render.add_plane(scene, size=40.0, material=m)
+            V, L = _dirn(tv, pv), _dirn(tl, pl)
+            render.add_camera(scene, location=tuple(5 * V + np.array([0.0, 0.0, 1e-9])), target=(0.0, 0.0, 0.0),
+                              ortho_scale=0.3)
+            sun = bpy.data.lights.new("sun", "SUN")
+            sun.energy, sun.angle = 1.0, 0.0
+            so = bpy.data.objects.new("sun", sun)
+            scene.collection.objects.link(so)
+            so.rotation_euler = (-Vector(tuple(L))).to_track_quat("-Z", "Y").to_euler()
+            img, _ = render.render_array(scene, str(render_dir), "sun")
+            want = img.reshape(-1, 3).mean(0)
+            got = brdfs.eval_material(d, np.array([0.0, 0.0, 1.0]), L, V) * L[2]
+            np.testing.assert_allclose(got, want, rtol=0.005, err_msg=f"{d} view {tv}/{pv} light {tl}/{pl}")
