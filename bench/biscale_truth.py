@@ -38,6 +38,17 @@ TILES = {
                                    {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.2, "F0": 1.0,
                                     "ks": 0.8},
                                    {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+    # a user's default Glossy BSDF (Multiscatter GGX, Roughness 0.5, colour 0.8) as the groove's walls
+    "groove (default Glossy: Multiscatter GGX)": ("groove_tile", dict(depth=0.4),
+                                                  [{"model": "lambert", "albedo": 0.7},
+                                                   {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.25,
+                                                    "fresnel": "none", "multiscatter": True, "F0": 1.0, "ks": 0.8},
+                                                   {"model": "lambert", "albedo": (0.2, 0.5, 0.8)}]),
+    # Principled BSDFs (Multiscatter GGX, the node's default): a metal floor, dielectric walls
+    "pyramid (Principled: metal floor and dielectric sides)": (
+        "pyramid_tile", dict(height=0.4, base=0.7),
+        [{"model": "principled", "base_color": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.4, "multiscatter": True},
+         {"model": "principled", "base_color": (0.2, 0.5, 0.8), "metallic": 0.0, "roughness": 0.5, "multiscatter": True}]),
     "pyramid (glossy sides on diffuse floor)": ("pyramid_tile", dict(height=0.4, base=0.7),
                                                  [{"model": "lambert", "albedo": (0.7, 0.5, 0.3)},
                                                   {"model": "cook_torrance", "distribution": "ggx", "alpha": 0.3,

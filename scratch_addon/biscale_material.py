@@ -5,15 +5,20 @@
 * ``small_scale_material``: a material slot -> small-scale BRDF dict (``precompute.biscale.brdfs``):
 
   - a *Diffuse BSDF* feeding the output -> ``lambert`` with albedo = its Color;
-  - a *Principled BSDF* -> ``cook_torrance`` with the GGX distribution, alpha = Roughness²
-    (Blender's own mapping), F0 = Base Color for Metallic = 1 and 0.04·Specular IOR Level/0.5
-    for dielectrics (linearly mixed by Metallic), diffuse kd = Base Color·(1 - Metallic);
-  - a *Glossy BSDF* -> ``cook_torrance`` (GGX, alpha = Roughness², no diffuse) with Cycles' colour: the Glossy
-    BSDF has no Fresnel, its Color c scales the lobe at every angle, so F0 = 1 (F = 1) and ks = c for a grey
-    c; a coloured c -> ks = max(c), F0 = c / max(c) (exact where the half vector is near the normal, the
-    dict holds one scalar ks: at grazing ωi·h the colour drifts towards max(c));
+  - a *Principled BSDF* -> ``principled`` (Cycles' own closures: F82-tint metal, dielectric specular with the real
+    Fresnel curve, Lambert base under the specular's albedo, Multiscatter GGX as the node's distribution says) when
+    its coat, sheen, transmission, subsurface, thin film, diffuse roughness and anisotropy are 0, alpha 1 and the
+    inputs it reads unlinked; otherwise the approximate ``cook_torrance`` (GGX, alpha = Roughness², Schlick F0 =
+    Base Color for Metallic = 1 and 0.08·Specular IOR Level for dielectrics, mixed by Metallic, kd = Base
+    Color·(1 - Metallic)) — the old mapping, 4-17 % off at a default node;
+  - a *Glossy BSDF* -> ``cook_torrance`` (alpha = Roughness², no diffuse) with Cycles' colour and distribution:
+    the Glossy BSDF has no Fresnel, its Color c scales the lobe at every angle (``fresnel="none"``, ks = max(c),
+    F0 = c / max(c)); Multiscatter GGX (the node's default) -> ``multiscatter=True`` (Cycles' energy
+    preservation: up to +15 % at Roughness 0.5, +68 % at 0.8 over single-scatter GGX), GGX -> ``ggx``, Beckmann ->
+    ``beckmann_smith`` (Cycles' own G), Ashikhmin-Shirley -> GGX of the same alpha (no twin);
   - Diffuse and Glossy BSDFs summed by *Add Shader* / blended by *Mix Shader* nodes (constant Fac; one Glossy
-    roughness) -> ``cook_torrance`` with kd = the weighted Diffuse colours, the Glossy colours as above;
+    roughness and distribution) -> ``cook_torrance`` with kd = the weighted Diffuse colours, the Glossy colours
+    summed as above (with several Glossy colours and Multiscatter GGX, Fms is taken of the summed colour);
   - anything else (or no node tree) -> ``lambert`` with the viewport diffuse colour.
 * ``make_biscale_material``: ``mode="table"`` (what ``bake`` makes by default): the table itself as
   a tabulated-BRDF closure (``osl/tabulated_brdf.osl``, one narrow GGX closure per sample, light
@@ -98,6 +103,9 @@ def small_scale_material(mat) -> dict:
     if node is not None and node.bl_idname == "ShaderNodeBsdfDiffuse":
         return {"model": "lambert", "albedo": clamp(_val(node, "Color", (0.8, 0.8, 0.8, 1)))}
     if node is not None and node.bl_idname == "ShaderNodeBsdfPrincipled":
+        exact = _principled_dict(node)
+        if exact is not None:
+            return exact
         base = np.array(clamp(_val(node, "Base Color", (0.8, 0.8, 0.8, 1))))
         metal = float(np.clip(_val(node, "Metallic", 0.0), 0, 1))
         rough = float(np.clip(_val(node, "Roughness", 0.5), 0, 1))
@@ -108,26 +116,54 @@ def small_scale_material(mat) -> dict:
                 "ks": 1.0}
     terms = _shader_terms(node, 1.0)
     if terms and all(n.bl_idname in _DIFFUSE + _GLOSSY for n, _ in terms):
-        rough = {round(float(np.clip(_val(n, "Roughness", 0.5), 0, 1)), 6) for n, _ in terms if n.bl_idname in _GLOSSY}
-        if len(rough) == 1:    # Cycles: Σ w (Diffuse colour / π) + Σ w Glossy colour · D G / (4 cos cos), no Fresnel
+        lobe = {(round(float(np.clip(_val(n, "Roughness", 0.5), 0, 1)), 6), _GLOSSY_DIST.get(n.distribution, "ggx"))
+                for n, _ in terms if n.bl_idname in _GLOSSY}
+        if len(lobe) == 1:     # Cycles: Σ w (Diffuse colour / π) + Σ w Glossy colour · D G / (4 cos cos)
             kd = sum((w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms
                       if n.bl_idname in _DIFFUSE), np.zeros(3))
             ks = sum(w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms
                      if n.bl_idname in _GLOSSY)
             ks = np.clip(ks, 0.0, 1.0)
             top = float(ks.max())
-            r = rough.pop()
-            return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(r * r, 1e-3),
+            r, dist = lobe.pop()
+            return {"model": "cook_torrance", "distribution": "ggx" if dist == "multi_ggx" else dist,
+                    "alpha": max(r * r, 1e-3), "fresnel": "none", "multiscatter": dist == "multi_ggx",
                     "F0": tuple(float(x) for x in (ks / top if top > 0 else np.ones(3))), "ks": top,
                     "kd": clamp(kd)}
-        if not rough:
+        if not lobe:
             kd = sum(w * np.asarray(_val(n, "Color", (0.8, 0.8, 0.8, 1))[:3], float) for n, w in terms)
             return {"model": "lambert", "albedo": clamp(kd)}
     return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
 
 
+def _principled_dict(node):
+    """``principled`` dict of a Principled BSDF node whose inputs the exact twin covers (no coat, sheen,
+    transmission, subsurface, thin film, diffuse roughness, anisotropy; the inputs it reads unlinked; GGX or
+    Multiscatter GGX), else None."""
+    from ..precompute.cycles import principled as pr
+
+    names = ("Base Color", "Metallic", "Roughness", "IOR", "Specular IOR Level", "Specular Tint", "Coat Weight",
+             "Sheen Weight", "Transmission Weight", "Subsurface Weight", "Thin Film Thickness", "Diffuse Roughness",
+             "Anisotropic", "Alpha")
+    if node.distribution not in ("GGX", "MULTI_GGX") or any(
+            node.inputs.get(k) is not None and node.inputs[k].is_linked for k in names):
+        return None
+    if not pr.principled_supported({k: _val(node, k, 0.0 if k != "Alpha" else 1.0) for k in names[6:]}):
+        return None
+    rgb = lambda c, hi=1.0: tuple(float(np.clip(x, 0.0, hi)) for x in list(c)[:3])  # noqa: E731
+    return {"model": "principled", "base_color": rgb(_val(node, "Base Color", (0.8, 0.8, 0.8, 1))),
+            "metallic": float(np.clip(_val(node, "Metallic", 0.0), 0, 1)),
+            "roughness": float(np.clip(_val(node, "Roughness", 0.5), 0, 1)),
+            "ior": float(np.clip(_val(node, "IOR", 1.5), 1e-3, 1e3)),
+            "specular_ior_level": float(np.clip(_val(node, "Specular IOR Level", 0.5), 0, 1e3)),
+            "specular_tint": rgb(_val(node, "Specular Tint", (1, 1, 1, 1)), 1e3),
+            "multiscatter": node.distribution == "MULTI_GGX"}
+
+
 _DIFFUSE = ("ShaderNodeBsdfDiffuse",)
 _GLOSSY = ("ShaderNodeBsdfGlossy", "ShaderNodeBsdfAnisotropic")
+#: the Glossy node's distribution -> ``brdfs`` cook_torrance (Ashikhmin-Shirley has no twin: GGX of the same α)
+_GLOSSY_DIST = {"GGX": "ggx", "MULTI_GGX": "multi_ggx", "BECKMANN": "beckmann_smith", "ASHIKHMIN_SHIRLEY": "ggx"}
 
 
 def _shader_terms(node, weight: float, depth: int = 0):

@@ -17,15 +17,20 @@ __all__ = ["small_scale_blender_material", "explicit_tile_plane", "direction_wor
 
 def small_scale_blender_material(mat: dict, name: str = "small scale") -> bpy.types.Material:
     """A Cycles material rendering the small-scale BRDF dict ``mat`` (``precompute.biscale.brdfs``)
-    exactly: ``lambert`` -> Diffuse BSDF; ``cook_torrance`` with the GGX distribution and F0 = 1 (Schlick
-    F = 1) -> Glossy BSDF GGX, colour ks, Roughness √α (Blender's α = Roughness²), plus a Diffuse BSDF
-    of colour kd.  Other models have no exact Cycles twin: ValueError."""
+    exactly: ``lambert`` -> Diffuse BSDF; ``cook_torrance`` with the GGX (or ``beckmann_smith``) distribution and
+    no Fresnel (F0 = 1, or ``fresnel="none"``) -> Glossy BSDF GGX / Multiscatter GGX (``multiscatter``) / Beckmann,
+    colour ks·F0, Roughness √α (Blender's α = Roughness²), plus a Diffuse BSDF of colour kd.  Other models have no
+    exact Cycles twin: ValueError."""
     model = mat.get("model") if isinstance(mat, dict) else None
+    if model == "principled":
+        return _principled_material(mat, name)
     if model not in ("lambert", "cook_torrance"):
         raise ValueError(f"materials: the explicit truth renders 'lambert' and GGX 'cook_torrance', got {model!r}")
-    if model == "cook_torrance" and (mat.get("distribution", "beckmann") != "ggx"
-                                     or not np.allclose(mat.get("F0", 0.95), 1.0)):
-        raise ValueError("materials: cook_torrance needs distribution 'ggx' and F0 = 1 for an exact Cycles twin")
+    if model == "cook_torrance" and (mat.get("distribution", "beckmann") not in ("ggx", "beckmann_smith")
+                                     or (mat.get("fresnel", "schlick") != "none"
+                                         and not np.allclose(mat.get("F0", 0.95), 1.0))):
+        raise ValueError("materials: cook_torrance needs distribution 'ggx' or 'beckmann_smith' and no Fresnel "
+                         "(F0 = 1 or fresnel 'none') for an exact Cycles twin")
     m = new_material(name)
     tree = m.node_tree
     for nd in [nd for nd in tree.nodes if nd.bl_idname != "ShaderNodeOutputMaterial"]:
@@ -39,9 +44,11 @@ def small_scale_blender_material(mat: dict, name: str = "small scale") -> bpy.ty
         tree.links.new(d.outputs["BSDF"], out.inputs["Surface"])
         return m
     g = tree.nodes.new("ShaderNodeBsdfGlossy")
-    g.distribution = "GGX"
+    g.distribution = ("BECKMANN" if mat["distribution"] == "beckmann_smith"
+                      else "MULTI_GGX" if mat.get("multiscatter", False) else "GGX")
     g.inputs["Roughness"].default_value = float(np.sqrt(mat.get("alpha", 0.2)))
-    g.inputs["Color"].default_value = rgb(mat.get("ks", 1.0))
+    colour = np.asarray(mat.get("ks", 1.0), float) * np.asarray(mat.get("F0", 1.0), float)
+    g.inputs["Color"].default_value = rgb(colour if mat.get("fresnel", "schlick") == "none" else mat.get("ks", 1.0))
     shader = g.outputs["BSDF"]
     kd = np.broadcast_to(np.asarray(mat.get("kd", 0.0), float), 3)
     if kd.max() > 0:
@@ -52,6 +59,26 @@ def small_scale_blender_material(mat: dict, name: str = "small scale") -> bpy.ty
         tree.links.new(shader, add.inputs[1])
         shader = add.outputs["Shader"]
     tree.links.new(shader, out.inputs["Surface"])
+    return m
+
+
+def _principled_material(mat: dict, name: str) -> bpy.types.Material:
+    """A Principled BSDF node with the ``principled`` dict's inputs (the rest at the node's defaults)."""
+    m = new_material(name)
+    tree = m.node_tree
+    for nd in [nd for nd in tree.nodes if nd.bl_idname != "ShaderNodeOutputMaterial"]:
+        tree.nodes.remove(nd)
+    out = next(nd for nd in tree.nodes if nd.bl_idname == "ShaderNodeOutputMaterial")
+    p = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    p.distribution = "MULTI_GGX" if mat.get("multiscatter", True) else "GGX"
+    rgb = lambda v: (*[float(x) for x in np.broadcast_to(np.asarray(v, float), 3)], 1.0)  # noqa: E731
+    p.inputs["Base Color"].default_value = rgb(mat.get("base_color", 0.8))
+    p.inputs["Metallic"].default_value = float(mat.get("metallic", 0.0))
+    p.inputs["Roughness"].default_value = float(mat.get("roughness", 0.5))
+    p.inputs["IOR"].default_value = float(mat.get("ior", 1.5))
+    p.inputs["Specular IOR Level"].default_value = float(mat.get("specular_ior_level", 0.5))
+    p.inputs["Specular Tint"].default_value = rgb(mat.get("specular_tint", 1.0))
+    tree.links.new(p.outputs["BSDF"], out.inputs["Surface"])
     return m
 
 

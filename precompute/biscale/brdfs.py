@@ -16,8 +16,18 @@ Materials are dicts (ranges checked, ``ValueError`` otherwise):
 * ``{"model": "blinn_phong", "kd": rgb, "ks": rgb, "exponent": e}`` — normalised
   specular lobe ks (e+8)/(8π) (n·h)^e
 * ``{"model": "cook_torrance", "alpha": a, "F0": rgb, "kd": rgb, "ks": s,
-  "distribution": "beckmann" | "ggx"}`` — D G F / (4 ci co); Beckmann uses the original
-  Cook-Torrance V-cavity G, GGX the height-correlated Smith G
+  "distribution": "beckmann" | "ggx" | "beckmann_smith", "fresnel": "schlick" | "none",
+  "multiscatter": False | True}`` — D G F / (4 ci co); Beckmann uses the original
+  Cook-Torrance V-cavity G, GGX the height-correlated Smith G, ``beckmann_smith`` Cycles' Beckmann (height-correlated
+  Smith G with Walter's rational Λ, ``precompute.cycles.beckmann``).  ``fresnel="none"``: F = 1 and the colour
+  ks·F0 at every angle (Cycles' Glossy BSDF, which has no Fresnel); ``multiscatter=True`` (GGX with ``fresnel="none"``
+  only): Cycles' *Multiscatter GGX* — the single-scatter lobe times 1 + Fms (1 - E(co)) / E(co) of the view cosine
+  co (``precompute.cycles.multiscatter``; not reciprocal, as in Cycles)
+* ``{"model": "principled", "base_color": rgb, "metallic": m, "roughness": r, "ior": η,
+  "specular_ior_level": L, "specular_tint": rgb, "multiscatter": True | False}`` — Cycles' Principled BSDF of an
+  opaque surface (no coat, sheen, transmission, subsurface, thin film; ``precompute.cycles.principled``): an
+  F82-tint GGX metal (weight m), a dielectric GGX specular with the real Fresnel curve and a Lambert base attenuated
+  by that specular's albedo estimate (weight 1 - m); ``multiscatter`` (the node's default) as for cook_torrance
 * ``{"model": "ward", "alpha": a, "rho_d": rgb, "rho_s": rgb}`` — isotropic Ward
 * ``{"model": "tabulated", "table": (n_theta, n_theta, n_phi, 3)}`` — samples at
   θi, θo on linspace(0, π/2, n_theta) and φd = |φi-φo| on linspace(0, π, n_phi), trilinear
@@ -32,9 +42,15 @@ from typing import Callable
 
 import numpy as np
 
+from ..cycles import beckmann as _cycles_beckmann
+from ..cycles import multiscatter as _multiscatter
+from ..cycles import principled as _principled
+
 __all__ = ["Lobe", "material_lobes", "eval_material", "MODELS"]
 
-MODELS = ("lambert", "blinn_phong", "cook_torrance", "ward", "tabulated")
+MODELS = ("lambert", "blinn_phong", "cook_torrance", "ward", "tabulated", "principled")
+#: ``cook_torrance`` distributions (see the module doc)
+DISTRIBUTIONS = ("beckmann", "ggx", "beckmann_smith")
 
 
 @dataclass(frozen=True)
@@ -44,6 +60,9 @@ class Lobe:
     key: str
     f: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
     colour: tuple
+    #: False for Cycles' view-dependent factors (Multiscatter GGX's 1/E(co), the Principled base's layering):
+    #: f(ci, co, cio) != f(co, ci, cio); the reciprocal matrix M (eq. 9) then takes the symmetric part
+    reciprocal: bool = True
 
     def cache_key(self):
         return {"lobe": self.key}
@@ -102,6 +121,11 @@ def _microfacet(alpha, dist, fresnel_part):
             D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
             vh_ = np.maximum(vh, 1e-12)
             G = np.minimum(1.0, np.minimum(2 * nh * co_ / vh_, 2 * nh * ci_ / vh_))
+        elif dist == "beckmann_smith":     # Cycles' bsdf_D<BECKMANN> and G2 = 1 / (1 + Λi + Λo)
+            D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+            li = _cycles_beckmann.beckmann_lambda_from_sqr_alpha_tan_n(a2 * (1 - ci_ * ci_) / (ci_ * ci_))
+            lo = _cycles_beckmann.beckmann_lambda_from_sqr_alpha_tan_n(a2 * (1 - co_ * co_) / (co_ * co_))
+            G = 1.0 / (1.0 + li + lo)
         else:
             D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
             li = (-1 + np.sqrt(1 + a2 * (1 - ci_ * ci_) / (ci_ * ci_))) / 2
@@ -114,6 +138,101 @@ def _microfacet(alpha, dist, fresnel_part):
             F = (1.0 - x) if fresnel_part == "f0" else x if fresnel_part == "one" else np.ones_like(x)
         return D * G * F / (4.0 * ci_ * co_)
     return f
+
+
+def _multiscatter_part(alpha):
+    """Single-scatter GGX (F = 1) times (1 - E(co)) / E(co): with colour c Fms(c), the part Cycles' Multiscatter GGX
+    adds (``precompute.cycles.multiscatter``; co = the view's cosine, Cycles' ``mu``)."""
+    ss = _microfacet(alpha, "ggx", "none")
+    rough = np.sqrt(alpha)
+
+    def f(ci, co, cio):
+        E = np.maximum(_multiscatter.ggx_E(rough, co), 1e-6)
+        return ss(ci, co, cio) * (1.0 - E) / E
+    return f
+
+
+def _times(f, g):
+    """The scalar lobe f(ci, co, cio) · g(ci, co, cio)."""
+    return lambda ci, co, cio: f(ci, co, cio) * g(ci, co, cio)
+
+
+def _ms_ratio(alpha):
+    """(1 - E(co)) / E(co): Multiscatter GGX's extra part per unit Fms (``precompute.cycles.multiscatter``)."""
+    rough = np.sqrt(alpha)
+
+    def g(ci, co, cio):
+        E = np.maximum(_multiscatter.ggx_E(rough, co), 1e-6)
+        return (1.0 - E) / E
+    return g
+
+
+def _principled_lobes(mat) -> list:
+    """Lobes of Cycles' Principled BSDF (opaque; see ``precompute.cycles.principled``), each GGX part with its
+    Multiscatter copy when ``multiscatter``."""
+    pr = _principled
+    b = np.asarray(_rgb(mat, "base_color", pr.PRINCIPLED_DEFAULTS["base_color"]))
+    metal = _num(mat, "metallic", 0.0, 0.0, 1.0)
+    r = _num(mat, "roughness", 0.5, 0.0, 1.0)
+    ior = _num(mat, "ior", 1.5, 1e-3, 1e3)
+    level = _num(mat, "specular_ior_level", 0.5, 0.0, 1e3)
+    tint = np.asarray(_rgb(mat, "specular_tint", 1.0, 0.0, 1e3))
+    multi = mat.get("multiscatter", True)
+    if not isinstance(multi, (bool, np.bool_)):
+        raise ValueError(f"principled.multiscatter: expected True or False, got {multi!r}")
+    alpha = max(r * r, 1e-3)
+    ss = _microfacet(alpha, "ggx", "none")
+    Ea = float(_multiscatter.ggx_E_avg(np.sqrt(alpha)))
+    ms = _ms_ratio(alpha)
+    key = f"pr:a={alpha!r}"
+    out: list[Lobe] = []
+
+    def add(name, f, colour, Fss=None):
+        out.append(Lobe(f"{key}:{name}", f, tuple(float(x) for x in colour)))
+        if multi and Fss is not None:       # + colour Fms f (1 - E) / E
+            Fms = np.asarray(Fss) * Ea / (1.0 - np.asarray(Fss) * (1.0 - Ea))
+            out.append(Lobe(f"{key}:{name}:ms", _times(f, ms), tuple(float(x) for x in np.asarray(colour) * Fms),
+                            reciprocal=False))
+
+    def x5(ci, co, cio):
+        return (1.0 - _half(ci, co, cio)[1]) ** 5
+
+    if metal > 0:                           # F82 tint: b + (1 - b) x⁵ - B c x⁶ (c = ωi·h, x = 1 - c)
+        B = pr.f82_tint_B(b, np.minimum(tint, 1.0))
+        Fss = b + (1.0 - b) / 21.0 - B / 126.0
+        add("metal:f0", _times(ss, lambda ci, co, cio: 1.0 - x5(ci, co, cio)), metal * b, Fss)
+        add("metal:one", _times(ss, x5), metal * np.ones(3), Fss)
+        if np.any(B != 0):
+            def cx6(ci, co, cio):
+                c = _half(ci, co, cio)[1]
+                return c * (1.0 - c) ** 6
+            add("metal:B", _times(ss, cx6), -metal * B, Fss)
+    w = 1.0 - metal
+    if w > 0:
+        f0, eta = pr.dielectric_f0_eta(ior, level)
+        f0t = np.clip(f0 * tint, 0.0, 1.0)
+        if eta != 1.0:                      # F = mix(f0 t, 1, s(c)), s the real curve's factor
+            def s_c(ci, co, cio):
+                return pr.real_curve_s(_half(ci, co, cio)[1], eta)
+            f0r = float(pr.F0_from_ior(eta))
+            s_avg = float(np.clip((pr.fresnel_dielectric_Fss(eta) - f0r) / max(1.0 - f0r, 1e-12), 0.0, 1.0))
+            Fss = f0t + (1.0 - f0t) * s_avg
+            add(f"spec:{eta!r}:f0", _times(ss, lambda ci, co, cio: 1.0 - s_c(ci, co, cio)), w * f0t, Fss)
+            add(f"spec:{eta!r}:one", _times(ss, s_c), w * np.ones(3), Fss)
+            Fms = Fss * Ea / (1.0 - Fss * (1.0 - Ea)) if multi else np.zeros(3)
+
+            def layered(ci, co, cio):       # closure_layering_weight: 1 - max_c albedo_c, the specular's albedo
+                S = pr.gen_schlick_ior_s(r, co, eta)[..., None]             # estimate mix(f0 t, 1, S(r, μ, z))
+                A = f0t + (1.0 - f0t) * S                                   # x its weight: Multiscatter's
+                if multi:                                                   # darkening E + Fms (1 - E)
+                    E = _multiscatter.ggx_E(np.sqrt(alpha), co)[..., None]
+                    A = A * (E + Fms * (1.0 - E))
+                return np.clip(1.0 - A.max(-1), 0.0, 1.0) / np.pi
+            out.append(Lobe(f"{key}:diffuse:{eta!r}:{tuple(f0t)!r}:{multi}", layered, tuple(float(x) for x in w * b),
+                            reciprocal=False))
+        else:
+            out.append(Lobe("lambert", _lambert, tuple(float(x) for x in w * b)))
+    return out
 
 
 def _ward(alpha):
@@ -179,20 +298,40 @@ def material_lobes(mat: dict) -> list[Lobe]:
     elif model == "cook_torrance":
         alpha = _num(mat, "alpha", 0.2, 1e-3, 1.0)
         dist = mat.get("distribution", "beckmann")
-        if dist not in ("beckmann", "ggx"):
-            raise ValueError(f"cook_torrance.distribution: expected 'beckmann' or 'ggx', got {dist!r}")
+        if dist not in DISTRIBUTIONS:
+            raise ValueError(f"cook_torrance.distribution: expected one of {DISTRIBUTIONS}, got {dist!r}")
+        fresnel = mat.get("fresnel", "schlick")
+        if fresnel not in ("schlick", "none"):
+            raise ValueError(f"cook_torrance.fresnel: expected 'schlick' or 'none', got {fresnel!r}")
+        multi = mat.get("multiscatter", False)
+        if not isinstance(multi, (bool, np.bool_)):
+            raise ValueError(f"cook_torrance.multiscatter: expected True or False, got {multi!r}")
+        if multi and (dist != "ggx" or fresnel != "none"):
+            raise ValueError("cook_torrance.multiscatter: True needs distribution 'ggx' and fresnel 'none' "
+                             f"(Cycles' Multiscatter GGX Glossy BSDF), got {dist!r} / {fresnel!r}")
         F0 = _rgb(mat, "F0", 0.95)
         ks = _num(mat, "ks", 1.0, 0.0, 1.0)
         kd = _rgb(mat, "kd", 0.0)
         if max(kd) > 0:
             lobes.append(Lobe("lambert", _lambert, kd))
-        if min(F0) == max(F0):  # grey Fresnel: one lobe with the full Schlick term
+        if fresnel == "none":   # Cycles' Glossy BSDF: colour c = ks F0 at every angle
+            c = np.asarray(F0) * ks
+            lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F=1", _microfacet(alpha, dist, "none"),
+                              tuple(float(x) for x in c)))
+            if multi:           # + c Fms(c) f_ss (1 - E) / E  (Kulla & Conty 2017 appendix; Cycles 4.0+)
+                Ea = float(_multiscatter.ggx_E_avg(np.sqrt(alpha)))
+                Fms = c * Ea / (1.0 - c * (1.0 - Ea))
+                lobes.append(Lobe(f"ct:ggx:a={alpha!r}:ms", _multiscatter_part(alpha), tuple(float(x) for x in c * Fms),
+                                  reciprocal=False))
+        elif min(F0) == max(F0):  # grey Fresnel: one lobe with the full Schlick term
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F0={F0[0]!r}",
                               _microfacet(alpha, dist, float(F0[0])),
                               (ks, ks, ks)))
         else:
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:f0part", _microfacet(alpha, dist, "f0"), tuple(ks * c for c in F0)))
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:onepart", _microfacet(alpha, dist, "one"), (ks, ks, ks)))
+    elif model == "principled":
+        lobes += _principled_lobes(mat)
     elif model == "ward":
         alpha = _num(mat, "alpha", 0.3, 1e-3, 1.0)
         rd, rs = _rgb(mat, "rho_d", 0.0), _rgb(mat, "rho_s", 0.5)

@@ -86,7 +86,8 @@ def _M_rows(lobe: Lobe, dirs: np.ndarray, normals: np.ndarray):
         co = cosND[:, o].T
         cio = cio_all[i, o][:, None]
         ok = (ci > 0) & (co > 0)
-        f = lobe(np.where(ok, ci, 1.0), np.where(ok, co, 1.0), np.broadcast_to(cio, ci.shape))
+        a, b_, c = np.where(ok, ci, 1.0), np.where(ok, co, 1.0), np.broadcast_to(cio, ci.shape)
+        f = lobe(a, b_, c) if lobe.reciprocal else 0.5 * (lobe(a, b_, c) + lobe(b_, a, c))   # M is reciprocal
         return np.where(ok, f * ci * co, 0.0)
     return rows, len(ia)
 

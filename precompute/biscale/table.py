@@ -86,13 +86,15 @@ MAX_SYMMETRY_FACES = 512
 
 def sharpest_alpha(materials) -> float:
     """Smallest microfacet-equivalent roughness α among small-scale material dicts
-    (``precompute.biscale.brdfs``): cook_torrance / ward α, Blinn-Phong e -> sqrt(2 / (e + 2));
+    (``precompute.biscale.brdfs``): cook_torrance / ward α, principled Roughness², Blinn-Phong e -> sqrt(2 / (e + 2));
     Lambert: inf; tabulated: 0.1 (unknown sharpness: the automatic maximum)."""
     out = math.inf
     for m in materials:
         model = m.get("model") if isinstance(m, dict) else None
         if model in ("cook_torrance", "ward"):
             out = min(out, float(m.get("alpha", 0.2 if model == "cook_torrance" else 0.3)))
+        elif model == "principled":
+            out = min(out, max(float(m.get("roughness", 0.5)) ** 2, 1e-3))
         elif model == "blinn_phong":
             out = min(out, math.sqrt(2.0 / (float(m.get("exponent", 20.0)) + 2.0)))
         elif model == "tabulated":

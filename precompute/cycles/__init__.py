@@ -3,4 +3,6 @@
 - ``ggx``       the GGX reflection closure (``bsdf_microfacet.h``) and the tilted-lobe cone collapse
 - ``beckmann``  the Beckmann distribution as Cycles evaluates it
 - ``glossy``    the Glossy node's (roughness, anisotropy) <-> (alpha_u, alpha_v) mapping, in one place
+- ``multiscatter``  Multiscatter GGX's energy preservation (E, E_avg on Cycles' table nodes)
+- ``principled``    the Principled BSDF of an opaque surface (F82 metal, real-curve dielectric, layered base)
 """

@@ -82,9 +82,14 @@ def _principled(name, base, rough, metal):
 def test_principled_mapping(addon, scene, bs):
     mat, _ = bs
     d = mat.small_scale_material(_principled("m", (0.8, 0.4, 0.2), 0.5, 1.0))
-    assert d["model"] == "cook_torrance" and d["alpha"] == pytest.approx(0.25)
-    assert d["F0"] == pytest.approx((0.8, 0.4, 0.2), abs=1e-6) and max(d["kd"]) == 0
-    d = mat.small_scale_material(_principled("d", (0.5, 0.5, 0.5), 0.2, 0.0))
+    assert d["model"] == "principled" and d["roughness"] == pytest.approx(0.5) and d["metallic"] == 1.0
+    assert d["base_color"] == pytest.approx((0.8, 0.4, 0.2), abs=1e-6) and d["multiscatter"] is True
+    assert d["ior"] == pytest.approx(1.5) and d["specular_ior_level"] == pytest.approx(0.5)
+    # a coat (no exact twin) keeps the approximate Schlick mapping
+    coated = _principled("d", (0.5, 0.5, 0.5), 0.2, 0.0)
+    coated.node_tree.nodes["Principled BSDF"].inputs["Coat Weight"].default_value = 0.3
+    d = mat.small_scale_material(coated)
+    assert d["model"] == "cook_torrance" and d["alpha"] == pytest.approx(0.04)
     assert d["kd"] == pytest.approx((0.5, 0.5, 0.5), abs=1e-6) and d["F0"][0] == pytest.approx(0.04)
 
 
@@ -109,7 +114,7 @@ def test_bake_operator_fast_path(addon, scene, bs):
     tile.data.materials[1].node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.2, 0.9, 0.2, 1)
     _, _, _, info = mat.bake(tile, target, n_lobes=1, n_facets=1500, dir_res=6)
     assert info["reused_tile"]
-    assert info["materials"][1]["F0"][1] == pytest.approx(0.9, abs=1e-6)
+    assert info["materials"][1]["base_color"][1] == pytest.approx(0.9, abs=1e-6)
 
 
 @pytest.mark.render
