@@ -62,11 +62,14 @@ def _camera(addon, scene, wo, frame):
     addon.render.add_camera(scene, location=tuple(5.0 * wo), target=(0, 0, 0), ortho_scale=frame)
 
 
-def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=64, tmp=None, images=None):
+def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=16, res=64, tmp=None, images=None,
+            max_bounces: int = 16):
     """{view: (albedo, E[dx²], E[dy²], E[dz²])} of the exit direction for ``kind`` in ("explicit",
     "table", "table_svm", "ellipsoid"; "table_svm": the table material on Cycles SVM, the default shading
     system); seconds of rendering.  ``materials``: {kind: () -> material} for the material kinds
-    (called after the scene reset, which removes unused datablocks).  ``addon``: the glue package."""
+    (called after the scene reset, which removes unused datablocks).  ``addon``: the glue package.
+    ``max_bounces``: Cycles' bounce limits (0: the explicit surface's single scattering with its own
+    shadowing and masking; 16: all inter-reflections)."""
     render, biscale_truth, microgeometry_truth = addon.render, addon.biscale_truth, addon.microgeometry_truth
     tmp = tmp or tempfile.mkdtemp()
     scene = render.reset_scene()
@@ -82,7 +85,7 @@ def moments(addon, kind: str, views, hf=None, smooth=None, materials=None, spp=1
     for v in views:
         wo = view_vector(*v)
         _camera(addon, scene, wo, frame)
-        render.configure_cycles(scene, samples=spp, res=(res, res), seed=1, osl=(kind == "table"), max_bounces=16)
+        render.configure_cycles(scene, samples=spp, res=(res, res), seed=1, osl=(kind == "table"), max_bounces=max_bounces)
         means = {}
         for world in ("white", "second"):
             if world == "white":

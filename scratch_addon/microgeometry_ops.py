@@ -115,17 +115,22 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
                               ndf_kind: str = "FILTERED", synthesize: bool = False, texture_size: int = 256,
                               texel_um: float = 63.5, texture_scale: float = 1.0, seed: int = 0,
                               color=(0.8, 0.8, 0.8), name: str | None = None, progress=None,
-                              ndf_model: str = "ELLIPSOID"):
+                              ndf_model: str = "ELLIPSOID", multiple_scattering: bool = True):
     """Height field file -> Cycles material (average NDF, or synthesised texture if ``synthesize``).
 
     ``ndf_model`` (average NDF only): ``"ELLIPSOID"`` the §8 ellipsoid fit as one Glossy lobe (SVM, GPU,
     EEVEE), ``"TABLE"`` the measured NDF itself as a tabulated microfacet BRDF (issue 16:
     ``tabulated_material.make_ndf_material``: the OSL closure with light sampling, its node-group table on
-    SVM / GPU / EEVEE; the ellipsoid lobe only where the table does not fit the images).  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
+    SVM / GPU / EEVEE; the ellipsoid lobe only where the table does not fit the images).
+    ``multiple_scattering`` (table only; default on): the table also holds the light the single-scattering
+    model's Smith shadowing loses, scattered again on the same NDF's Smith microsurface (Heitz et al. 2016), so a
+    mirror-like metal keeps its energy at grazing views.  Returns ``(material, info)`` with ``info = {"ellipsoid", "loss", "cached"}`` (``loss``
     None for the table).  A failure leaves no new material or image behind.
     """
     if ndf_model not in NDF_MODELS:
         raise ValueError(f"ndf_model: expected one of {list(NDF_MODELS)}, got {ndf_model!r}")
+    if not isinstance(multiple_scattering, (bool, np.bool_)):
+        raise ValueError(f"multiple_scattering: expected True or False, got {multiple_scattering!r}")
     if ndf_model == "TABLE" and synthesize:
         raise ValueError("ndf_model: the measured-NDF table is the average material; the synthesised texture "
                          "(synthesize) uses the ellipsoid fit per texel")
@@ -150,7 +155,8 @@ def material_from_heightfield(filepath: str, pixel_um: float, sigma_um: float = 
             # the fallback twin where the table does not fit the node-group images
             mat, loss = make_ndf_material(NDFTable(tables["ndf"], kind=ndf_kind.lower()),
                                           name or f"Microgeometry {stem} (NDF table)", F=rgba[:3],
-                                          svm_twin=lambda tree: _average_node(tree, maps, rgba).outputs["BSDF"]), None
+                                          svm_twin=lambda tree: _average_node(tree, maps, rgba).outputs["BSDF"],
+                                          multiple_scattering=multiple_scattering), None
         else:
             mat, _, loss = make_average_material(name or f"Microgeometry {stem} (average)", tables["ellipsoid"], color)
         mat["microgeometry_source"] = os.path.basename(filepath)
@@ -179,6 +185,10 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
     ndf_model: bpy.props.EnumProperty(name="NDF Model", default="ELLIPSOID",
                                       items=[(k, a, b) for k, (a, b) in NDF_MODELS.items()],
                                       description="Average material: the ellipsoid fit, or the measured NDF as a table")
+    multiple_scattering: bpy.props.BoolProperty(
+        name="Multiple Scattering", default=True,
+        description="NDF table: also the light scattered more than once between the micro-facets (Heitz et al. "
+                    "2016 random walk on the same NDF), so a mirror-like metal keeps its energy at grazing views")
     synthesize: bpy.props.BoolProperty(name="Synthesise Texture", default=False,
                                        description="Spatially varying ellipsoid NDF texture (§9) "
                                                    "instead of the average NDF")
@@ -205,6 +215,9 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
         row = col.row()
         row.enabled = not self.synthesize
         row.prop(self, "ndf_model", expand=True)
+        row = col.row()
+        row.enabled = not self.synthesize and self.ndf_model == "TABLE"
+        row.prop(self, "multiple_scattering")
         sub = col.column()
         sub.enabled = self.synthesize
         for prop in ("texture_size", "texel_um", "texture_scale", "seed"):
@@ -217,7 +230,8 @@ class SCRATCH_OT_material_from_heightfield(bpy.types.Operator):
                 mat, info = material_from_heightfield(
                     self.filepath, self.pixel_um, self.sigma_um, self.wavelength_um, self.ndf_kind, self.synthesize,
                     self.texture_size, self.texel_um, self.texture_scale, self.seed, progress=update,
-                    ndf_model="ELLIPSOID" if self.synthesize else self.ndf_model)
+                    ndf_model="ELLIPSOID" if self.synthesize else self.ndf_model,
+                    multiple_scattering=self.multiple_scattering)
         except USER_ERRORS as exc:
             return report_error(self, exc)
         assign_material(obj, mat)

@@ -135,16 +135,19 @@ def make_tabulated_material(brdf, name: str = "Tabulated BRDF", alpha: float | N
 
 
 def make_ndf_material(ndf, name: str = "Measured NDF", F=(0.9, 0.9, 0.9), res: int | None = None,
-                      svm_twin=None) -> bpy.types.Material:
+                      svm_twin=None, multiple_scattering: bool = True) -> bpy.types.Material:
     """Material of a measured NDF (Dong et al. 2015; ``precompute.microgeometry.ndf.NDFTable``, e.g. the
     filtered or Kirchhoff NDF of ``precompute.microgeometry.tables.compute_tables``) rendered as its own
     microfacet BRDF table (``precompute.microgeometry.ndf_brdf``: a half-vector table zoomed to the NDF's
     support), not its ellipsoid fit; reflectance ``F`` (RGB); ``res``: the half-vector grid side (default:
     ``ndf_brdf.table_layout``).  Cycles (OSL and SVM) renders the table; the EEVEE twin: ``svm_twin(tree) ->
-    socket`` (Material from Height Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table."""
+    socket`` (Material from Height Field passes its ellipsoid lobe), else the Diffuse + Glossy fit of the table.
+    ``multiple_scattering`` (default on: a mirror metal keeps its energy): the light Smith shadowing removes,
+    scattered again on the Smith microsurface of the same NDF (``ndf_brdf``, Heitz et al. 2016), in the same table."""
     from ..precompute.microgeometry import ndf_brdf
 
-    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F), name, svm_twin=svm_twin,
-                                  kind="microgeometry_table")
+    mat = make_tabulated_material(ndf_brdf.ndf_brdf(ndf, res=res, F=F, multiple_scattering=multiple_scattering),
+                                  name, svm_twin=svm_twin, kind="microgeometry_table")
+    mat["microgeometry_multiple_scattering"] = bool(multiple_scattering)
     mat["microgeometry_ndf_kind"] = str(getattr(ndf, "kind", "tabulated"))
     return mat

@@ -32,3 +32,33 @@ def test_ndf_table_matches_the_explicit_surface_and_the_ellipsoid_does_not(addon
         assert np.abs(t - e).max() < 0.01, (v, t, e)
         assert np.abs(el - e).max() > 0.02, (v, el, e)
     assert res["explicit"][(0.0, 0.0)][1] < 0.5 * res["explicit"][(0.0, 0.0)][2]     # brushed: narrow along x
+
+
+def test_rougher_surface_at_grazing_view_needs_multiple_scattering(addon, scene, render_dir):
+    """The rougher brushed scan (rms 0.5 µm, correlation 6 x 1.5 µm) at 70° across the scratches on Cycles SVM
+    (the default): the NDF table with multiple scattering (the material's default) keeps the explicit mirror surface's
+    albedo 1.00 within 2 % and its E[dy²] within 0.013 (the goal 0.01 is the bench's, 64 px x 32 spp: 0.0073; here
+    measured 0.0045); the single-scattering table (``multiple_scattering=False``) renders albedo 0.91 and misses by
+    0.0125 here (the session-8 material: 0.89 and 0.0199 in the bench), at least 0.005 more than the new table, so
+    the bounds can fail.  32 px x 8 spp, ~25 s (the walk is computed once per session cache)."""
+    import importlib as il
+
+    for name in ("biscale_truth", "microgeometry_truth"):
+        il.import_module(f"{addon.__name__}.{name}")
+    mg = il.import_module(addon.__name__ + ".microgeometry_ops")
+    view = (70.0, 90.0)
+    hf, smooth = mt.surface(mt.SURFACES["rougher"])
+    path = str(render_dir / "rougher.npy")
+    np.save(path, hf.heights)
+
+    def factory(ms):
+        return lambda: mg.material_from_heightfield(path, hf.pixel_um, mt.SIGMA_UM, ndf_model="TABLE",
+                                                    color=(1, 1, 1), multiple_scattering=ms)[0]
+    mats = {"table": factory(True), "single": factory(False)}
+    e = mt.moments(addon, "explicit", [view], hf, smooth, spp=8, res=32, tmp=str(render_dir))[0][view]
+    t = mt.moments(addon, "table_svm", [view], hf, smooth, mats, spp=8, res=32, tmp=str(render_dir))[0][view]
+    s = mt.moments(addon, "table_svm", [view], hf, smooth, {"table": mats["single"]}, spp=8, res=32,
+                   tmp=str(render_dir))[0][view]
+    assert abs(t[2] - e[2]) < 0.013 and abs(t[1] - e[1]) < 0.013, (t, e)
+    assert abs(t[0] - e[0]) < 0.02, (t, e)
+    assert s[0] < 0.95 and abs(s[2] - e[2]) > abs(t[2] - e[2]) + 0.005, (s, t, e)
