@@ -185,7 +185,7 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto"
     t0 = time.perf_counter()
     table = btable.tabulate_tile(bt, mats, view=view)   # the closure's finer table (direct, eq. 8)
     t_tab = time.perf_counter() - t0
-    vg = {"view_a": table.view_a, "view_b": table.view_b} if table.view_a is not None else {}
+    vg = {"view_a": table.view_a, "view_b": table.view_b, "view_shift": table.view_shift} if table.view_a is not None else {}
     if not indirect and not fit:
         return {"table": (table, brdf)}, {"effective (dir_res %d)" % dir_res: t_eff, "table": t_tab}, None
     ind, info = interreflect.tile_indirect(bt, mats, True, view=table.view_nodes() if vg else None)
@@ -290,7 +290,8 @@ def main(argv: list[str]) -> int:
                  "direction-coded world 0.5+0.5d + area lamp (NEE on); GI: max bounces "
                  f"{GI_BOUNCES} for the explicit tiles (the baked plane has nothing to bounce off). 'table': Wu's "
                  "single-bounce effective BRDF (closure table: ωi res 31, ωo on a 31 x 31 view grid of projected view "
-                 "angles, 2.5x denser beyond 65°, with the tile's visibility events on nodes, table.tile_view_grid; "
+                 "angles, 2.5x denser beyond 65°, with the tile's visibility events on nodes, table.tile_view_grid, "
+                 "interpolated between them by following the lobe, TabulatedBRDF.view_shift; "
                  "above MAX_FLOATS: rendered through the node graph on SVM and on OSL); '+ inter-refl.': plus "
                  "bounces >= 2 inside the periodic tile (precompute.biscale.interreflect: res 10 x 529 paths per "
                  "direction for diffuse tiles, res 19 x 289 for the GGX α 0.2 groove, interreflect.indirect_res; first "

@@ -125,6 +125,7 @@ def lamp_term(names=("bump", "bump (cap α 0.3)"), views=((0, 0), (55, 300), (70
 
 def main(argv: list[str]) -> int:
     from bench import biscale_truth as bt
+    from scratch_materials.precompute.biscale import table as btab
     from bench._util import blender, report
 
     ap = argparse.ArgumentParser(prog="bench biscale_truth_audit")
@@ -190,7 +191,9 @@ def main(argv: list[str]) -> int:
            ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "err / σ", "explicit RGB",
             "baked RGB"], rows,
            notes=f"{'environment only (no lamp); ' if args.no_lamp else ''}bake seed {args.bake_seed}; SVM (explicit tiles and the baked table's node graph{'; (OSL) rows: the same material on OSL' if args.osl else ''}); "
-                 f"{n_facets} facets, closure table ωi res 19 x 19 x 19 view grid (table.tile_view_grid); "
+                 f"{n_facets} facets, closure table ωi res {btab.CLOSURE_RES}, {btab.VIEW_NODES} x {btab.VIEW_NODES} view grid "
+                 "2.5x denser beyond 65° (table.tile_view_grid), interpolated by following the lobe (view_shift), "
+                 "sharp materials averaged over sub-cells (table.material_sub); "
                  f"explicit {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {spp} spp x "
                  f"{args.seeds} seeds, explicit images the mean of {args.shifts} camera offsets; direction-coded "
                  f"world 0.5+0.5d + area lamp 300 W at (-1.5, 1, 2.5) size 1.5 (NEE on); GI: {GI_BOUNCES} bounces.")

@@ -79,6 +79,8 @@ def table_hash(tb: tbm.ClosureTables) -> str:
     if getattr(tb, "view_a", None) is not None:      # view grids only: the hash of other tables is unchanged
         for a in (tb.view_a, tb.view_b):
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    if getattr(tb, "centroid", None) is not None:    # lobe-following view interpolation (other hashes unchanged)
+        h.update(b"centroid" + np.ascontiguousarray(tb.centroid, np.float32).tobytes())
     return h.hexdigest()[:12]
 
 
@@ -91,6 +93,8 @@ def images(tb: tbm.ClosureTables) -> dict:
         out["V"] = _data_image(IMAGE_PREFIX + "V", arr["V"], alpha=False)
     if "K" in arr:
         out["K"] = _data_image(IMAGE_PREFIX + "K", arr["K"], alpha=False)
+    if "C" in arr:
+        out["C"] = _data_image(IMAGE_PREFIX + "C", arr["C"], alpha=False)
     for img in out.values():    # EEVEE uploads float images as half floats by default (Cycles reads float32):
         img.use_half_precision = False     # the guide's node index up to 18 would round by up to 0.008
     return out
@@ -199,7 +203,8 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
             tv = g.node("ShaderNodeTexImage", image=imgs["V"], interpolation="Linear", extension="EXTEND")
             g._set(tv.inputs["Vector"], g.madd(ang, (scale, 0.0, 0.0), (offset, 0.25 + 0.5 * k, 0.0)))
             xs.append(tv.outputs["Color"])                              # (xa, 0, 0) and (0, xb, 0)
-        rc = g.vmath("FLOOR", g.vmath("ADD", xs[0], g.vmath("ADD", xs[1], h1)))
+        xab = g.vmath("ADD", xs[0], xs[1])                              # (xa, xb, 0)
+        rc = g.vmath("FLOOR", g.vmath("ADD", xab, h1))
         o = g.vmath("DOT_PRODUCT", rc, (float(len(tb.view_b)), 1.0, 0.0))
         fx, fy = t, ey
     else:
@@ -252,6 +257,30 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
     qx, qy, _ = g.separate(q)
     x = g.madd(N, qz, g.madd(fy, qy, g.vmath("SCALE", fx, scale=qx)))
     L2 = g.vmath("DOT_PRODUCT", x, x)
+    shift = getattr(tb, "centroid", None) is not None and "C" in imgs
+    if shift:
+        # lobe-following view interpolation: the target moves by Δ_o = C(xa, xb) (Linear) - C(ia, ib) (Closest), in bin
+        # units (``tabulated_brdf.svm_images`` "C"); the weight stays the drawn point's
+        NA, NB = len(tb.view_a), len(tb.view_b)
+        if eevee:
+            c_lin = _closest_bilinear(g, imgs["C"], g.vmath("ADD", xab, (0.5, 0.5, 0.0)), NA, NB)
+        else:
+            tl = g.node("ShaderNodeTexImage", image=imgs["C"], interpolation="Linear", extension="EXTEND")
+            g._set(tl.inputs["Vector"], g.madd(xab, (1.0 / NA, 1.0 / NB, 0.0), (0.5 / NA, 0.5 / NB, 0.0)))
+            c_lin = tl.outputs["Color"]
+        tc = g.node("ShaderNodeTexImage", image=imgs["C"], interpolation="Closest", extension="EXTEND")
+        g._set(tc.inputs["Vector"], g.madd(rc, (1.0 / NA, 1.0 / NB, 0.0), (0.5 / NA, 0.5 / NB, 0.0)))
+        mp2 = g.node("ShaderNodeMapping", vector_type="POINT")
+        g._set(mp2.inputs["Vector"], g.vmath("ADD", gv, g.vmath("SUBTRACT", c_lin, tc.outputs["Color"])))
+        for name in ("Location", "Rotation", "Scale"):
+            mp2.inputs[name].default_value = mp.inputs[name].default_value
+        q2 = mp2.outputs["Vector"]
+        qz2 = g.math("SUBTRACT", 1.0, g.vmath("DOT_PRODUCT", g.vmath("ABSOLUTE", q2), (1.0, 1.0, 0.0)))
+        qx2, qy2, _ = g.separate(q2)
+        x_t = g.madd(N, qz2, g.madd(fy, qy2, g.vmath("SCALE", fx, scale=qx2)))
+        L2_t = g.vmath("DOT_PRODUCT", x_t, x_t)
+    else:
+        x_t, L2_t = x, L2
     a2 = float(tb.alpha) ** 2
 
     def inv_albedo(cd):     # 2 r / (1 + r), r = sqrt(1 - α² + α² / cd²): 1/A
@@ -264,9 +293,11 @@ def _build(ng, tb: tbm.ClosureTables, imgs: dict, _break: str | None, eevee: boo
         s = g.math("DIVIDE", g.math("MULTIPLY", oh, above), oz)        # ωi = reflect(ωo, h) above the horizon
         cd = oh
     else:
-        m = g.vmath("NORMALIZE", g.madd(wo, g.math("SQRT", L2), x))
+        m = g.vmath("NORMALIZE", g.madd(wo, g.math("SQRT", L2_t), x_t))
         cd = g.vmath("DOT_PRODUCT", wo, m) if tbm.svm_uses_albedo(tb) else None
         s = g.math("DIVIDE", qz, g.math("MULTIPLY", L2, L2))
+        if shift:                                                       # no light from a target below the horizon
+            s = g.math("MULTIPLY", s, g.math("GREATER_THAN", qz2, 0.0))
     s = g.math("MULTIPLY", s, inv_p)
     if tbm.svm_uses_albedo(tb):
         s = g.math("MULTIPLY", s, inv_albedo(cd))

@@ -27,7 +27,9 @@ Grazing views (issue 16 item 2, "at every view"): the lamp's highlight on a glos
 the view and is sharp in ωi, so the bake's table is ωi 31² (``CLOSURE_RES``) on 31 x 31 view nodes 2.5x denser beyond
 65° (``VIEW_NODES``, ``VIEW_GRAZING``): 2,770,563 floats, above ``MAX_FLOATS``, rendered through the node graph on every
 path (``scratch_addon.tabulated_material``).  Explicit-geometry renders (SVM, 256 spp, ``bench/out/biscale_truth_svm_views.md``):
-groove 80/180 5.5 -> 2.8 %, pyramid 80/0 3.4 -> 1.9 % (seed 0); the groove at 78/200 still misses by 3.8 %.
+groove 80/180 5.5 -> 2.8 %, pyramid 80/0 3.4 -> 1.9 % (seed 0).  Between the view nodes the closure follows the lobe
+(``tabulate_tile(view_shift=True)``, ``TabulatedBRDF.view_shift``): off the axes the highlight moves with the view and
+blending the bracketing rows left the groove at 78/200 3.8 / 3.0 % dark (seeds 0 / 1); with the shift 2.0 / 1.2 %.
 """
 from __future__ import annotations
 
@@ -289,7 +291,7 @@ def _normal_groups(tile):
     return normal_grid(res_n), idx, wt
 
 
-def tabulate_tile(tile, materials, res: int | None = None, view=None) -> TabulatedBRDF:
+def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift: bool = True) -> TabulatedBRDF:
     """The tile's effective BRDF (Wu et al. 2011, eq. 8 / eq. 7) tabulated for the closure at ``res``
     (default ``closure_res(dir_res)``) directly from its facets: for every pair of fine grid
     directions (ωi, ωo),
@@ -302,7 +304,9 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None) -> Tabulat
     the hemi-octahedral ωo grid.  ``tile``: ``BiscaleTile`` (its facets, colour weights
     and groups), ``materials``: the small-scale material dicts.  ``view``: ωo on the hemi-octahedral grid
     (None), on a view grid (view_a, view_b) of projected view angles, or "auto" (``tile_view_grid``: the
-    tile's visibility events on nodes; ``tabulated_brdf`` docstring).  Cost: one visibility pass over
+    tile's visibility events on nodes; ``tabulated_brdf`` docstring).  ``view_shift`` (view grids; default True): the
+    closure interpolates between view nodes by following the lobe (``TabulatedBRDF.view_shift``: each node's row moved
+    by the interpolated centroid minus its own), not by blending rows whose highlights sit apart.  Cost: one visibility pass over
     res² directions plus, per (material, colour, normal) group, a (res² x S_g) @ (S_g x res²) product
     and one BRDF evaluation on res⁴ pairs.  Returns an anisotropic ``TabulatedBRDF``."""
     if res is None:     # hemi-octahedral ωo (view None): at most what OSL compiles (its graph atlas is n_o (res + 2) tall)
@@ -362,5 +366,9 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None) -> Tabulat
         inv_o = np.where(a_vo > 1e-12, 1.0 / a_vo, 0.0)[None, :] / dirs[:, 2][:, None]
         inv_i = np.where(a_v > 1e-12, 1.0 / a_v, 0.0)[:, None] / dirs_o[:, 2][None, :]
     T = np.maximum(0.5 * num * (inv_o + inv_i)[..., None], 0.0)
+    if vg:
+        if not isinstance(view_shift, (bool, np.bool_)):
+            raise ValueError(f"view_shift: must be True or False, got {view_shift!r}")
+        vg["view_shift"] = bool(view_shift)
     return TabulatedBRDF(T, res, False, {"source": "biscale", "tabulated_from": "facets", "dir_res": res,
                                          "n_facets": int(len(tile.pos)), "view_grid": int(bool(vg))}, **vg)

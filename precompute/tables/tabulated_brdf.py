@@ -27,6 +27,21 @@ V-cavities) is a line a = const, so its view kinks sit exactly on nodes (``view_
 of between them.  The shader finds the interval by a guide over the angle (``view_guide``) and a short
 walk, once per shading point.
 
+**Lobe-following view interpolation** (``view_shift``, view grids; the bi-scale bake's default).  A highlight moves
+with the view (the mirror direction of a tile's wall turns as fast as the view does), so blending the rows of the
+four bracketing nodes spreads it over four places and its peak sags between them (groove tile, θo/φo 78/200, the lamp
+on a GGX α 0.2 wall: the lamp term -3.7 % of eq. 8 with nodes 3° x 7.7° apart, -1.5 % with a node at the view).
+Instead each tap's row is moved, as a mass per unit (s, t) area, by Δ_o = c(ωo) - c_o: the bilinear interpolation
+of the rows' centroids c_o (``view_centroids``: the mean (s, t) of f cos θ J) at the view, minus node o's own
+(``view_shifts``): f(ωi, ωo) = Σ_o w_o g_o(st - Δ_o) / (cos θi J(st)), g_o = f_o cos θ J, zero where st - Δ_o leaves
+the square.  At the nodes it is the table; between them a lobe that moves rigidly is carried along instead of
+blended (displacement interpolation to first order).  The closure only moves its drawn target by Δ_o: the weight
+f_o cos θ / p_o of the drawn point is unchanged (a translation in (s, t) keeps the mass and the density per unit
+area), so sampling, NEE and MIS stay exact for the shifted BRDF (``sample``, ``pdf``, ``sample_alias``; the graph
+reads Δ_o from a centroid image "C" with one Linear and one Closest lookup; OSL: ``CEN``).  With a floor
+(``floor_parts``) the closure moves the residual only (its own centroids); the floors stay where they are.
+Measured (numpy, lamp term vs eq. 8, groove at 78/200, the bake grid's bracketing nodes): -3.7 -> -1.6 %.
+
 **Half-vector tables** (``half=True``, for sharp microfacet BRDFs such as measured NDFs).  The "ωi"
 axis is then the half vector h = normalize(ωi + ωo) on the same hemi-octahedral grid zoomed to
 (s, t) ∈ [-Z, Z]² (Z = ``extent`` <= 1: the diamond |px| + |py| <= Z around the normal), and
@@ -104,7 +119,7 @@ from .prefilter import deconvolve_cells
 __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", "hemi_oct_encode",
            "hemi_oct_decode", "direction_grid", "jacobian", "lobe_albedo", "default_alpha", "theta_nodes",
            "MAX_RES", "MAX_FLOATS", "MAX_TABLE_FLOATS", "DEFENSIVE", "reflect", "cell_points", "guide_table", "guide_pick",
-           "view_angles", "view_directions", "view_taps", "view_guide", "view_grid_nodes", "VIEW_GUIDE_BINS",
+           "view_angles", "view_directions", "view_taps", "view_guide", "view_centroids", "view_shifts", "view_grid_nodes", "VIEW_GUIDE_BINS",
            "lambert_nodes", "floor_split", "closure_albedo",
            "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
            "glossy_eval", "FLOOR_DISTS", "floor_ks",
@@ -217,6 +232,43 @@ def view_taps(wo, view_a, view_b):
     idx = np.stack([o, o + 1, o + nb, o + nb + 1], 1)
     w = np.stack([(1 - fa) * (1 - fb), (1 - fa) * fb, fa * (1 - fb), fa * fb], 1)
     return idx, w
+
+
+def view_centroids(table, res: int) -> np.ndarray:
+    """Centroid (s, t) (n_o, 2) of each ωo node's row of ``table`` (res², n_o, 3 or 1): the mean of the cell centres
+    weighted by the row's mass per unit (s, t) area, g_k = f̄_k cos θ_k J(s_k, t_k) (f̄ the channel mean; J
+    ``jacobian``); (0, 0) for an empty row.  The anchor of the lobe-following view interpolation
+    (``TabulatedBRDF.view_shift``, module docstring)."""
+    st = hemi_oct_encode(direction_grid(int(res)))
+    g = np.asarray(table, np.float64).mean(-1) * (hemi_oct_decode(st)[:, 2] * jacobian(st))[:, None]   # (D, n_o)
+    tot = g.sum(0)
+    return np.where(tot[:, None] > 0, (g.T @ st) / np.where(tot > 0, tot, 1.0)[:, None], 0.0)
+
+
+def view_shifts(centroids, io, wto) -> np.ndarray:
+    """(s, t) offsets (N, k, 2) of the taps ``io`` (N, k) with weights ``wto`` (N, k) of the lobe-following view
+    interpolation: Δ_o = Σ_o' w_o' c_o' - c_o, the interpolated centroid minus node o's (``view_centroids``)."""
+    C = np.asarray(centroids, np.float64)
+    c = np.einsum("nk,nkd->nd", wto, C[io])
+    return c[:, None, :] - C[io]
+
+
+def _shifted_eval(table, res: int, centroids, wi, io, wto) -> np.ndarray:
+    """f(ωi, ωo) (N, 3) of the lobe-following view interpolation: Σ_o w_o g_o(st - Δ_o) / (cos θi J(st)), g_o = f_o cos J
+    the row's bilinear mass per (s, t) area at the point shifted back, 0 where that point leaves the square."""
+    st = hemi_oct_encode(wi)
+    d = view_shifts(centroids, io, wto)
+    den = np.maximum(wi[:, 2], 1e-12) * jacobian(st)
+    out = np.zeros((len(wi), table.shape[2]))
+    for k in range(io.shape[1]):
+        s2 = st - d[:, k]
+        inside = np.all(np.abs(s2) <= 1.0, axis=1)
+        s2 = np.clip(s2, -1.0, 1.0)
+        ii, wti = _bilinear(s2, res)
+        fo = np.einsum("na,nac->nc", wti, table[ii, io[:, k:k + 1]])
+        g = fo * (hemi_oct_decode(s2)[:, 2] * jacobian(s2) / den)[:, None]
+        out += np.where(inside[:, None], wto[:, k:k + 1] * g, 0.0)
+    return out
 
 
 def view_guide(nodes, bins: int = VIEW_GUIDE_BINS) -> np.ndarray:
@@ -383,7 +435,8 @@ class TabulatedBRDF:
     ``table`` (res², n_o, 3): n_o = res² (anisotropic) or ``n_theta`` (isotropic).  ``half``: the first
     axis is the half vector on the grid zoomed to (s, t) ∈ [-extent, extent]² (module docstring).
     ``view_a`` / ``view_b`` (radians): a view grid in the projected view angles (anisotropic, not half;
-    n_o = NA NB, module docstring)."""
+    n_o = NA NB, module docstring); ``view_shift`` (view grids only): interpolate between its nodes by following the
+    lobe (each tap's row moved by the interpolated centroid minus its own, module docstring) instead of blending."""
     table: np.ndarray
     res: int
     iso: bool = False
@@ -392,6 +445,7 @@ class TabulatedBRDF:
     extent: float = 1.0
     view_a: np.ndarray | None = None
     view_b: np.ndarray | None = None
+    view_shift: bool = False
 
     def __post_init__(self):
         validation.check_range("res", self.res, 2, MAX_RES)
@@ -409,6 +463,11 @@ class TabulatedBRDF:
             self.view_a = _check_view_nodes("view_a", self.view_a)
             self.view_b = _check_view_nodes("view_b", self.view_b)
             n_o = len(self.view_a) * len(self.view_b)
+        if not isinstance(self.view_shift, (bool, np.bool_)):
+            raise ValueError(f"view_shift: must be True or False, got {self.view_shift!r}")
+        self.view_shift = bool(self.view_shift)
+        if self.view_shift and self.view_a is None:
+            raise ValueError("view_shift: the lobe-following view interpolation needs a view grid (view_a, view_b)")
         if t.ndim != 3 or t.shape[0] != n_i or t.shape[2] != 3 or (not self.iso and t.shape[1] != n_o) \
                 or (self.iso and not 2 <= t.shape[1] <= 256):
             want = "(res², n_theta in [2, 256], 3)" if self.iso else \
@@ -427,6 +486,8 @@ class TabulatedBRDF:
                "half": self.half, "extent": self.extent}
         if self.view_a is not None:
             key.update(view_a=self.view_a, view_b=self.view_b)
+        if self.view_shift:
+            key.update(view_shift=True)
         return key
 
     # -- frames
@@ -463,6 +524,9 @@ class TabulatedBRDF:
         if wi.shape != wo.shape:
             raise ValueError(f"wi, wo: expected equal shapes, got {wi.shape} and {wo.shape}")
         wl, io, wto = self._local(wi, wo)
+        if self.view_shift:
+            out = _shifted_eval(self.table, self.res, view_centroids(self.table, self.res), wi, io, wto)
+            return np.where(((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None], out, 0.0)
         st, inside = self.grid_coords(wl, self._local(wo, wo)[0])
         ii, wti = _bilinear(st, self.res)
         vals = self.table[ii[:, :, None], io[:, None, :]]
@@ -585,7 +649,9 @@ class ClosureTables:
     floor's albedo (``floor_split``): the shader adds a Diffuse closure of weight kd, and ``F`` / ``cdf`` are
     those of the residual r = f - kd/π (- ks g); ``ks`` (3,), ``alpha_g``, ``dist_g``: the glossy floor
     (``glossy_floor_split``: a ``dist_g`` ("ggx" / "beckmann") closure of α ``alpha_g`` and colour ks, none when ks = 0;
-    ``ks_view`` (n_o, 3) or None: the colour per θo node of an isotropic table, ``floor_ks``)."""
+    ``ks_view`` (n_o, 3) or None: the colour per θo node of an isotropic table, ``floor_ks``); ``centroid`` (n_o, 2) or
+    None: the (s, t) centroids of F's rows (``view_centroids``) when the table interpolates its view grid by following
+    the lobe (``TabulatedBRDF.view_shift``: the drawn target moves by the interpolated centroid minus its node's)."""
     F: np.ndarray
     cdf: np.ndarray
     res: int
@@ -601,6 +667,7 @@ class ClosureTables:
     alpha_g: float = 0.0
     dist_g: str = "ggx"
     ks_view: np.ndarray | None = None
+    centroid: np.ndarray | None = None
 
     def __post_init__(self):
         if self.guide is None:
@@ -690,7 +757,7 @@ def floor_split(brdf: TabulatedBRDF, floor: bool = True):
             kd = np.zeros(3)
         table = np.maximum(table - kd * lam[..., None], 0.0)   # >= 0 up to rounding at the argmin nodes
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
-    vg = {} if va is None else {"view_a": va, "view_b": vb}
+    vg = {} if va is None else {"view_a": va, "view_b": vb, "view_shift": bool(getattr(brdf, "view_shift", False))}
     res_brdf = TabulatedBRDF(table, brdf.res, bool(brdf.iso), dict(getattr(brdf, "info", {}) or {}), half,
                              float(getattr(brdf, "extent", 1.0)) if half else 1.0, **vg)
     return kd, res_brdf
@@ -985,7 +1052,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     table = np.asarray(brdf.table, np.float64)
     D, n_o = table.shape[:2]
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
-    vg = {} if va is None else {"view_a": va, "view_b": vb}
+    vg = {} if va is None else {"view_a": va, "view_b": vb, "view_shift": bool(getattr(brdf, "view_shift", False))}
     if dist is not None and dist not in FLOOR_DISTS:
         raise ValueError(f"dist: expected one of {FLOOR_DISTS}, got {dist!r}")
     n_grid = validation.check_int("n_grid", n_grid, 1, 64)
@@ -1178,9 +1245,10 @@ def closure_tables(brdf: TabulatedBRDF, alpha: float | None = None, floor=True) 
     cdf /= cdf[:, -1:]
     cdf[:, -1] = 1.0
     va, vb = getattr(brdf, "view_a", None), getattr(brdf, "view_b", None)
+    cen = view_centroids(brdf.table, res) if getattr(brdf, "view_shift", False) else None
     return ClosureTables(brdf.table.astype(np.float32), cdf.astype(np.float32), res, bool(brdf.iso), float(alpha),
                          half, extent, view_a=va, view_b=vb, kd=kd, ks=parts.ks, alpha_g=parts.alpha_g,
-                         dist_g=parts.dist_g, ks_view=parts.ks_view)
+                         dist_g=parts.dist_g, ks_view=parts.ks_view, centroid=cen)
 
 
 def guide_pick(cdf, guide, o, u) -> np.ndarray:
@@ -1256,6 +1324,17 @@ def sample(tb: ClosureTables, wo, u):
     c0, c1, fc = _lin_taps((t + 1) * 0.5 * res - 0.5, res)
     f = (((1 - fr) * (1 - fc))[:, None] * F[r0 * res + c0, o] + ((1 - fr) * fc)[:, None] * F[r0 * res + c1, o]
          + (fr * (1 - fc))[:, None] * F[r1 * res + c0, o] + (fr * fc)[:, None] * F[r1 * res + c1, o])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wfac = np.where(pk > 0, wl[:, 2] / np.where(pk > 0, p, 1.0), 0.0)   # cos θi / p at the drawn point (ωi tables)
+    if getattr(tb, "centroid", None) is not None:               # lobe-following view interpolation: move the target
+        d = view_shifts(tb.centroid, taps, wts)[np.arange(N), j]
+        s2, t2 = s + d[:, 0], t + d[:, 1]
+        pk = np.where((np.abs(s2) <= 1.0) & (np.abs(t2) <= 1.0), pk, 0.0)
+        qx, qy = 0.5 * (s2 + t2), 0.5 * (s2 - t2)
+        v = np.stack([qx, qy, 1 - np.abs(qx) - np.abs(qy)], -1)
+        ln = np.linalg.norm(v, axis=1)
+        wl = v / ln[:, None]
+        p = np.where(pk > 0, pk / (cell ** 2 * 0.5 / ln ** 3), 0.0)   # the target's density (per steradian)
     # back to the surface frame (iso: the frame turned by φo)
     x = np.stack([cph * wl[:, 0] - sph * wl[:, 1], sph * wl[:, 0] + cph * wl[:, 1], wl[:, 2]], -1)
     if tb.half:                                                 # x is h: ωi = reflect(ωo, h), dωi = 4 |ωo·h| dωh
@@ -1270,7 +1349,7 @@ def sample(tb: ClosureTables, wo, u):
         m /= np.linalg.norm(m, axis=1, keepdims=True)
     A = lobe_albedo(np.sum(wo * m, 1), tb.alpha)
     with np.errstate(divide="ignore", invalid="ignore"):
-        W = np.where(pk[:, None] > 0, f * wi[:, 2:3] / (p * A)[:, None], 0.0)
+        W = np.where(pk[:, None] > 0, f * (wi[:, 2] / p if tb.half else wfac)[:, None] / A[:, None], 0.0)
     return wi, m, W, p
 
 
@@ -1289,6 +1368,14 @@ def pdf(tb: ClosureTables, wi, wo) -> np.ndarray:
         x = x / np.where(ok[:, None], n, 1.0)
     wl = np.stack([cph * x[:, 0] + sph * x[:, 1], -sph * x[:, 0] + cph * x[:, 1], x[:, 2]], -1)
     st = hemi_oct_encode(wl)
+    if getattr(tb, "centroid", None) is not None:               # the targets moved by Δ_o: the cell each came from
+        st_k = st[:, None, :] - view_shifts(tb.centroid, taps, wts)
+        ok_k = np.all(np.abs(st_k) <= 1.0, axis=2)
+        c_k = np.clip(((st_k + 1.0) * 0.5 * res).astype(int), 0, res - 1)
+        kk = c_k[..., 0] * res + c_k[..., 1]
+        P = (cdf[taps, kk + 1] - cdf[taps, kk]) * wts * ok_k
+        out = P.sum(1) / (4.0 / res ** 2 * jacobian(st))
+        return np.where((wi[:, 2] > 0) & (wo[:, 2] > 0), out, 0.0)
     ok &= np.all(np.abs(st) <= Z, axis=1)
     cell = np.clip(((st / Z + 1.0) * 0.5 * res).astype(int), 0, res - 1)
     k = cell[:, 0] * res + cell[:, 1]
@@ -1446,7 +1533,10 @@ def svm_images(tb: ClosureTables) -> dict:
       ``view_b`` (``svm_view_guide``; read Linear at heights 1/4 and 3/4, the rows' centres, the sum of the two
       colours is (xa, xb, 0)); other channels 0;
     - ``"K"`` (glossy floor per view, ``ks_view``; 1, n_o): RGB the glossy floor's colour at θo node o (read Linear
-      at ((x + 1/2) / n_o, 1/2), x the continuous θo index: ``floor_ks``)."""
+      at ((x + 1/2) / n_o, 1/2), x the continuous θo index: ``floor_ks``);
+    - ``"C"`` (lobe-following view grids, ``centroid``; NB, NA): texel (ib, ia) RG = node (ia, ib)'s centroid (t, s) / cell
+      in the graph's bin coordinates (g0 along t, g1 along s): a Linear read at ((xa + 1/2) / NA, (xb + 1/2) / NB) minus a
+      Closest read at the drawn node's texel is the target's shift Δ_o (``view_shifts``)."""
     res, n_o, D = tb.res, tb.n_o, tb.res * tb.res
     cdf = tb.cdf.astype(np.float64)
     P = np.diff(cdf, axis=1)
@@ -1474,6 +1564,12 @@ def svm_images(tb: ClosureTables) -> dict:
         k = np.zeros((1, len(tb.ks_view), 4), np.float32)
         k[0, :, :3] = tb.ks_view
         out["K"] = k
+    if getattr(tb, "centroid", None) is not None:
+        NA, NB = len(tb.view_a), len(tb.view_b)
+        c = np.zeros((NB, NA, 4), np.float32)
+        cen = np.asarray(tb.centroid, np.float64).reshape(NA, NB, 2).transpose(1, 0, 2) / (2.0 / res)
+        c[..., 0], c[..., 1] = cen[..., 1], cen[..., 0]
+        out["C"] = c
     return out
 
 
@@ -1584,6 +1680,7 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
     Z = tb.extent if tb.half else 1.0
     o = svm_view_node(tb, wo, u[:, 0], u[:, 1], images)
     k, invP = svm_alias_pick(images, o, u[:, 2])
+    shift = getattr(tb, "centroid", None) is not None
     rk = np.floor((k + 0.5) / res)
     ck = k - res * rk
     g0, g1 = ck + u[:, 3], rk + u[:, 4]
@@ -1593,6 +1690,15 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
                        (ty * (res + 2) + 1.0 + g1) / Fimg.shape[0])[:, :3]
     qx, qy = Z * ((g0 + g1) * cell / 2 - 1.0), Z * (g1 - g0) * cell / 2
     qz = 1.0 - np.abs(qx) - np.abs(qy)
+    if shift:                                       # the target moved by Δ_o = C Linear at (xa, xb) - C Closest at the node
+        C = images["C"]
+        xab = svm_view_index(tb, wo, images)
+        ia, ib = np.floor(xab[:, 0] + u[:, 0]), np.floor(xab[:, 1] + u[:, 1])
+        dg = (texture_linear(C, (xab[:, 0] + 0.5) / C.shape[1], (xab[:, 1] + 0.5) / C.shape[0])
+              - texture_closest(C, (ia + 0.5) / C.shape[1], (ib + 0.5) / C.shape[0]))
+        g0s, g1s = g0 + dg[:, 0], g1 + dg[:, 1]
+        qx2, qy2 = (g0s + g1s) * cell / 2 - 1.0, (g1s - g0s) * cell / 2
+        qz2 = 1.0 - np.abs(qx2) - np.abs(qy2)
     if tb.iso:                                      # the frame turned about n so that ωo has azimuth 0
         fy = np.stack([-wo[:, 1], wo[:, 0] + 1e-6, np.zeros(len(wo))], -1)     # n x (ωo + 1e-6 t)
         fy /= np.linalg.norm(fy, axis=1, keepdims=True)
@@ -1614,10 +1720,16 @@ def sample_alias(tb: ClosureTables, wo, u, images: dict | None = None):
         p = p / (4.0 * np.abs(oh))
     else:
         wi = x / ln[:, None]
+        s = qz / (L2 * L2) * invP
+        if shift:                                   # weight of the drawn point, direction of the moved one (above the horizon)
+            x = qx2[:, None] * fx + qy2[:, None] * fy + qz2[:, None] * np.array([0, 0, 1.0])
+            ln = np.linalg.norm(x, axis=1)
+            wi = x / ln[:, None]
+            s = s * (qz2 > 0)
+            p = P / (cell * cell * 0.5 / ln ** 3)
         m = x + ln[:, None] * wo
         m /= np.linalg.norm(m, axis=1, keepdims=True)
         cd = np.sum(wo * m, 1)
-        s = qz / (L2 * L2) * invP
     if svm_uses_albedo(tb):                         # 1/A = 2 r / (1 + r), r = √(1 - α² + α² / cd²)
         r = np.sqrt(1.0 - a2 + a2 / np.where(cd != 0, cd * cd, np.inf))
         s = s * 2.0 * r / (1.0 + r)

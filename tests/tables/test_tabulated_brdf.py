@@ -29,7 +29,7 @@ def aniso_brdf(wi, wo):
 
 @pytest.fixture(scope="module")
 def tables():
-    return {"aniso": tb.TabulatedBRDF.from_function(aniso_brdf, 10),
+    out = {"aniso": tb.TabulatedBRDF.from_function(aniso_brdf, 10),
             "iso": tb.TabulatedBRDF.from_function(ggx_plus_diffuse(), 12, iso=True, n_theta=12),
             # half-vector tables (h grid zoomed to the lobe): a sharp anisotropic lobe, and an isotropic GGX
             "half": tb.TabulatedBRDF.from_function(aniso_brdf, 10, sub=2, half=True, extent=0.8),
@@ -38,6 +38,10 @@ def tables():
             # a view grid in the projected view angles, warped (an event at a = 0.4 rad), denser in a than b
             "view": tb.TabulatedBRDF.from_function(aniso_brdf, 10, view_a=tb.view_grid_nodes(13, [0.4]),
                                                    view_b=tb.view_grid_nodes(9))}
+    # the same view grid interpolated by following the lobe (``view_shift``: targets moved by the centroid shift)
+    v = out["view"]
+    out["view_shift"] = tb.TabulatedBRDF(v.table, v.res, view_a=v.view_a, view_b=v.view_b, view_shift=True)
+    return out
 
 
 def _unit(v):
@@ -81,18 +85,19 @@ def _chi2_pvalue(brdf, wo, wo_sampled=None, n=40000, seed=0, nt=10, npf=20):
 
 @pytest.mark.parametrize("kind, wo", [("aniso", (0.45, 0.2, 0.8)), ("aniso", (-0.9, 0.1, 0.3)),
                                       ("iso", (0.3, -0.5, 0.7)), ("iso", (0.95, 0.05, 0.1)),
-                                      ("view", (0.45, 0.2, 0.8)), ("view", (-0.9, 0.1, 0.3))])
+                                      ("view", (0.45, 0.2, 0.8)), ("view", (-0.9, 0.1, 0.3)),
+                                      ("view_shift", (0.45, 0.2, 0.8)), ("view_shift", (-0.9, 0.1, 0.3))])
 def test_sampler_chi_square(tables, kind, wo):
     """Off-node views (the ωo node is itself sampled): the sampled targets follow ``pdf`` (p > 1e-3,
     200 bins, 40k samples); the same statistic rejects the sampler of the mirrored view (p < 1e-6),
     so the test can fail."""
     wo = _unit(wo)
     assert _chi2_pvalue(tables[kind], wo) > 1e-3
-    wrong = wo * np.array([-1, 1, 1]) if kind in ("aniso", "view") else _unit(wo * np.array([1, 1, 3]))
+    wrong = wo * np.array([-1, 1, 1]) if kind in ("aniso", "view", "view_shift") else _unit(wo * np.array([1, 1, 3]))
     assert _chi2_pvalue(tables[kind], wo, wrong) < 1e-6
 
 
-@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])
+@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view", "view_shift"])
 def test_weight_is_eval_cos_over_pdf(tables, kind):
     """At a ωo node (one interpolation tap) every sample's weight equals eval · cos θi / (pdf · A) and
     its density equals ``pdf``: the shader's weight and the closure's target density agree."""
@@ -120,7 +125,7 @@ def test_weight_is_eval_cos_over_pdf(tables, kind):
     np.testing.assert_allclose(W, R.eval(wi, WO) * wi[:, 2:3] / (p * A)[:, None], rtol=1e-5, atol=1e-9)
 
 
-@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view"])
+@pytest.mark.parametrize("kind", ["aniso", "iso", "half", "iso_half", "view", "view_shift"])
 def test_furnace_mean_weight_is_albedo(tables, kind):
     """The floors' albedo (kd + ks E_g, ``floor_albedo``) plus the mean of W · A over samples (what a white furnace
     renders, A the closure albedo) equals the directional albedo of floors + residual (``closure_albedo``: the

@@ -110,6 +110,11 @@ def test_view_grid_shader_compiles():
     assert "#define VIEW_GRID 1" in src
     oso = compiler.compile_source(src)
     assert compiler.oso_params(oso)["BSDF"] == ("oparam", "closure color")
+    # the lobe-following view interpolation (view_shift): its centroid table and flag compile too
+    Bs = tb.TabulatedBRDF(B.table, B.res, view_a=B.view_a, view_b=B.view_b, view_shift=True)
+    src = gen.generate(Bs, name="t_view_shift")
+    assert "#define VIEW_SHIFT 1" in src and "CEN" in src
+    assert compiler.oso_params(compiler.compile_source(src))["BSDF"] == ("oparam", "closure color")
 
 
 @pytest.mark.bpy
