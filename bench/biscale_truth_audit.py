@@ -98,16 +98,10 @@ def lamp_term(names=("bump", "bump (cap α 0.3)"), views=((0, 0), (55, 300), (70
     from scratch_materials.precompute.biscale import table as btab
     from scratch_materials.precompute.biscale.effective import BiscaleTile, brute_force_fr_at
 
-    rng = np.random.default_rng(1)
-    c = np.array([-1.5, 1.0, 2.5])
-    nrm = -c / np.linalg.norm(c)
-    u = np.cross(nrm, [0.0, 0.0, 1.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(nrm, u)
-    st = rng.uniform(-0.75, 0.75, (n_lamp, 2))
-    P = c + st[:, :1] * u + st[:, 1:] * v
-    d = P / np.linalg.norm(P, axis=1, keepdims=True)
-    w = np.clip(np.sum(-d * nrm, 1), 0, None) * d[:, 2] / np.sum(P * P, 1)
+    from bench.biscale_gi_split import lamp_points
+
+    d, w = lamp_points(n_lamp, np.random.default_rng(1))
+    w = w * d[:, 2]                                              # cos_lamp cos θi / r² (up to a constant)
     for name in names:
         builder, mats = AUDIT_TILES[name]
         tile = builder()

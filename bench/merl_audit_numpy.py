@@ -40,13 +40,9 @@ def studio(w):
 
 def env_radiance(f, wo, n=700, n_phi=1440):
     from scratch_materials.precompute.tables import tabulated_brdf as tb
+    from scratch_materials.precompute.tables.merl import half_vector_grid
 
-    x = (np.arange(n) + 0.5) / n
-    th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n
-    ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
-    TH, PH = np.meshgrid(th, ph, indexing="ij")
-    h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
-    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
+    h, dwh = half_vector_grid(n, n_phi)
     W = np.broadcast_to(wo, h.shape)
     wi, ok = tb.reflect(W, h)
     wi = np.where(ok[:, None], wi, [0.0, 0.0, 1.0])

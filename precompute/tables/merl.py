@@ -25,6 +25,7 @@ from .. import validation
 from .tabulated_brdf import MAX_RES, TabulatedBRDF, reflect
 
 __all__ = ["read_merl", "write_merl", "half_diff", "lookup", "bin_centres", "tabulate", "to_tabulated", "fill_missing",
+           "half_vector_grid",
            "lobe_width", "auto_resolution", "cell_angle", "AUTO_RES_MIN", "AUTO_RES_MAX", "AUTO_N_THETA", "SHAPE", "SCALE"]
 
 SHAPE = (90, 90, 180)
@@ -104,17 +105,23 @@ def lookup(table, wi, wo) -> np.ndarray:
     return np.where(((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None], out, 0.0)
 
 
-def half_vector_albedo(f, wo, n_theta: int = 90, n_phi: int = 180) -> np.ndarray:
-    """Directional albedo ∫ f cos θi dωi (N, 3) of a BRDF ``f(wi, wo) -> (M, 3)`` (1/sr) for views ``wo`` (N, 3):
-    midpoint rule over the half vector in MERL's own warping θh = x² π/2 (``n_theta`` x ``n_phi`` points, dense at
-    the specular peak), ωi = reflect(ωo, h), dωi = 4 |h·ωo| dωh.  Dimensionless.  With ``f`` = ``lookup`` of a file
-    and ``n_theta`` = 90 one point per θh bin (GGX α 0.05 file: within 0.14 % of 1500 x 360 points)."""
+def half_vector_grid(n_theta: int = 90, n_phi: int = 180) -> tuple[np.ndarray, np.ndarray]:
+    """Midpoints h (n_theta n_phi, 3) of the upper hemisphere in MERL's warping θh = x² π/2 (dense at the specular
+    peak) and their solid angles dωh (sr)."""
     x = (np.arange(n_theta) + 0.5) / n_theta
     th, dth = x * x * (np.pi / 2), 2 * x * (np.pi / 2) / n_theta
     ph = (np.arange(n_phi) + 0.5) / n_phi * 2 * np.pi
     TH, PH = np.meshgrid(th, ph, indexing="ij")
     h = np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
-    dwh = (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
+    return h, (np.sin(TH) * dth[:, None]).ravel() * (2 * np.pi / n_phi)
+
+
+def half_vector_albedo(f, wo, n_theta: int = 90, n_phi: int = 180) -> np.ndarray:
+    """Directional albedo ∫ f cos θi dωi (N, 3) of a BRDF ``f(wi, wo) -> (M, 3)`` (1/sr) for views ``wo`` (N, 3):
+    midpoint rule over the half vector in MERL's own warping θh = x² π/2 (``n_theta`` x ``n_phi`` points, dense at
+    the specular peak), ωi = reflect(ωo, h), dωi = 4 |h·ωo| dωh.  Dimensionless.  With ``f`` = ``lookup`` of a file
+    and ``n_theta`` = 90 one point per θh bin (GGX α 0.05 file: within 0.14 % of 1500 x 360 points)."""
+    h, dwh = half_vector_grid(n_theta, n_phi)
     out = []
     for w in np.atleast_2d(np.asarray(wo, np.float64)):
         W = np.broadcast_to(w, h.shape)
