@@ -91,6 +91,18 @@ def frame_mean_se(imgs):
     return mean, np.sqrt(imgs.var(0, ddof=1).mean(0) / (imgs.shape[0] * imgs.shape[1]))
 
 
+#: orthographic view width (m) of the truth renders, and the margin (m) kept between the footprint and the plane's edge
+ORTHO_SCALE, EDGE_MARGIN = 0.4, 0.5
+
+
+def plane_size(views) -> float:
+    """Side (m) of the truth planes: 4 m, or more when a grazing view's footprint (ORTHO_SCALE / cos θo along the
+    view) would come within EDGE_MARGIN of the edge — at 85° a 4 m plane filled only 87 % of the frame and the
+    frame's far side showed the explicit array's last row of tiles, unshadowed by neighbours the baked plane assumes."""
+    cos_min = min(max(abs(float(np.asarray(w)[2])), 1e-3) for w in views)
+    return max(4.0, 2.0 * (0.5 * ORTHO_SCALE / cos_min + EDGE_MARGIN))
+
+
 def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounces=0, lamp=True, tmp=None,
                seed=7, seeds=None, noise=False, shifts=1, osl=True):
     """Mean RGB per view of the explicit tiles (rendered once per seed) and of every baked material in
@@ -113,6 +125,8 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
 
     seeds = tuple(seeds) if seeds is not None else ((seed, seed + 1) if noise else (seed,))
     tmp = tmp or tempfile.mkdtemp()
+    size = plane_size(views)
+    n = int(round(n * size / 4.0))                  # the tile's world period stays 4 m / n
     scene = bpy.context.scene
     out = {k: [] for k in ["explicit", *mats]}
     se = {k: [] for k in out}
@@ -124,19 +138,19 @@ def render_set(tile, materials, mats: dict, views, n=300, spp=64, res=32, bounce
         if lamp:
             render.add_light(scene, "AREA", location=(-1.5, 1.0, 2.5), energy=300.0, size=1.5)
         if kind == "explicit":
-            biscale_truth.explicit_tile_plane(scene, tile, materials, n=n, size=4.0)
+            biscale_truth.explicit_tile_plane(scene, tile, materials, n=n, size=size)
         else:
-            render.add_plane(scene, size=4.0, material=mats[kind])
+            render.add_plane(scene, size=size, material=mats[kind])
         for wo in views:
             up = (0, 1, 0) if abs(wo[2]) > 0.999 else None
             imgs = np.zeros((len(seeds), res * res, 3))
-            offs = camera_shifts(shifts) * (4.0 / n) if kind == "explicit" else np.zeros((1, 2))
+            offs = camera_shifts(shifts) * (size / n) if kind == "explicit" else np.zeros((1, 2))
             for off in offs:
                 for c in [o for o in scene.objects if o.type == "CAMERA"]:
                     bpy.data.objects.remove(c)
                 tgt = np.array([off[0], off[1], 0.0])
                 loc = tuple(tgt + 5 * wo + (np.array([0, -1e-3, 0]) if up else 0))
-                render.add_camera(scene, location=loc, target=tuple(tgt), ortho_scale=0.4)
+                render.add_camera(scene, location=loc, target=tuple(tgt), ortho_scale=ORTHO_SCALE)
                 for j, sd in enumerate(seeds):
                     render.configure_cycles(scene, samples=max(1, spp // len(offs)), res=(res, res), seed=sd,
                                             osl=osl.get(kind, True) if isinstance(osl, dict) else osl,
@@ -282,7 +296,7 @@ def main(argv: list[str]) -> int:
     report(("biscale_truth_svm" if args.svm else "biscale_truth") + (f"_{args.tag}" if args.tag else ""), ["tile", "baked", "light", "view θo/φo", "max rel. err", "render noise 1σ", "explicit RGB", "baked RGB",
                              "bake s"], rows,
            notes=f"views {' '.join(f'{a:g}/{b:g}' for a, b in views)}; shading system {'SVM (explicit tiles and the rows (SVM): the baked table through its node graph; rows (OSL): the same material on OSL in the same run)' if args.svm else 'OSL'}; "
-                 f"bake seed(s) {','.join(map(str, bake_seeds))}; explicit: {n}x{n} tiles on a 4 m plane, orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
+                 f"bake seed(s) {','.join(map(str, bake_seeds))}; explicit: {n} tiles per 4 m on a {plane_size([_view(*v) for v in views]):.1f} m plane (larger than 4 m only for views beyond ~78°: plane_size), orthographic 0.4 m views, 32x32 px x {args.spp} spp x "
                  f"{args.seeds} seeds, each explicit image the mean of {args.shifts} camera offsets over the tile period at "
                  f"spp/{args.shifts} (render noise 1σ: standard error of the difference of the two frame means, "
                  "from the across-seed per-pixel variance, explicit and baked; it does not include the bake's own "
