@@ -217,9 +217,17 @@ def _principled_lobes(mat) -> list:
             f0r = float(pr.F0_from_ior(eta))
             s_avg = float(np.clip((pr.fresnel_dielectric_Fss(eta) - f0r) / max(1.0 - f0r, 1e-12), 0.0, 1.0))
             Fss = f0t + (1.0 - f0t) * s_avg
-            add(f"spec:{eta!r}:f0", _times(ss, lambda ci, co, cio: 1.0 - s_c(ci, co, cio)), w * f0t, Fss)
-            add(f"spec:{eta!r}:one", _times(ss, s_c), w * np.ones(3), Fss)
             Fms = Fss * Ea / (1.0 - Fss * (1.0 - Ea)) if multi else np.zeros(3)
+            if np.all(f0t == f0t[0]):       # grey (an untinted specular): one scalar lobe, F (1 + Fms m) folded in
+                g0, gm = float(f0t[0]), float(Fms[0])
+
+                def spec(ci, co, cio):
+                    F = g0 + (1.0 - g0) * s_c(ci, co, cio)
+                    return ss(ci, co, cio) * F * ((1.0 + gm * ms(ci, co, cio)) if multi else 1.0)
+                out.append(Lobe(f"{key}:spec:{eta!r}:{g0!r}:{multi}", spec, (w, w, w), reciprocal=not multi))
+            else:
+                add(f"spec:{eta!r}:f0", _times(ss, lambda ci, co, cio: 1.0 - s_c(ci, co, cio)), w * f0t, Fss)
+                add(f"spec:{eta!r}:one", _times(ss, s_c), w * np.ones(3), Fss)
 
             def layered(ci, co, cio):       # closure_layering_weight: 1 - max_c albedo_c, the specular's albedo
                 S = pr.gen_schlick_ior_s(r, co, eta)[..., None]             # estimate mix(f0 t, 1, S(r, μ, z))
