@@ -140,25 +140,14 @@ def _microfacet(alpha, dist, fresnel_part):
     return f
 
 
-def _multiscatter_part(alpha):
-    """Single-scatter GGX (F = 1) times (1 - E(co)) / E(co): with colour c Fms(c), the part Cycles' Multiscatter GGX
-    adds (``precompute.cycles.multiscatter``; co = the view's cosine, Cycles' ``mu``)."""
-    ss = _microfacet(alpha, "ggx", "none")
-    rough = np.sqrt(alpha)
-
-    def f(ci, co, cio):
-        E = np.maximum(_multiscatter.ggx_E(rough, co), 1e-6)
-        return ss(ci, co, cio) * (1.0 - E) / E
-    return f
-
-
 def _times(f, g):
     """The scalar lobe f(ci, co, cio) · g(ci, co, cio)."""
     return lambda ci, co, cio: f(ci, co, cio) * g(ci, co, cio)
 
 
 def _ms_ratio(alpha):
-    """(1 - E(co)) / E(co): Multiscatter GGX's extra part per unit Fms (``precompute.cycles.multiscatter``)."""
+    """(1 - E(co)) / E(co): Multiscatter GGX's extra part per unit Fms over single-scatter GGX
+    (``precompute.cycles.multiscatter``; co = the view's cosine, Cycles' ``mu``)."""
     rough = np.sqrt(alpha)
 
     def g(ci, co, cio):
@@ -190,7 +179,7 @@ def _principled_lobes(mat) -> list:
     def add(name, f, colour, Fss=None):
         out.append(Lobe(f"{key}:{name}", f, tuple(float(x) for x in colour)))
         if multi and Fss is not None:       # + colour Fms f (1 - E) / E
-            Fms = np.asarray(Fss) * Ea / (1.0 - np.asarray(Fss) * (1.0 - Ea))
+            Fms = _multiscatter.F_ms(Fss, Ea)
             out.append(Lobe(f"{key}:{name}:ms", _times(f, ms), tuple(float(x) for x in np.asarray(colour) * Fms),
                             reciprocal=False))
 
@@ -217,7 +206,7 @@ def _principled_lobes(mat) -> list:
             f0r = float(pr.F0_from_ior(eta))
             s_avg = float(np.clip((pr.fresnel_dielectric_Fss(eta) - f0r) / max(1.0 - f0r, 1e-12), 0.0, 1.0))
             Fss = f0t + (1.0 - f0t) * s_avg
-            Fms = Fss * Ea / (1.0 - Fss * (1.0 - Ea)) if multi else np.zeros(3)
+            Fms = _multiscatter.F_ms(Fss, Ea) if multi else np.zeros(3)
             if np.all(f0t == f0t[0]):       # grey (an untinted specular): one scalar lobe, F (1 + Fms m) folded in
                 g0, gm = float(f0t[0]), float(Fms[0])
 
@@ -328,9 +317,8 @@ def material_lobes(mat: dict) -> list[Lobe]:
                               tuple(float(x) for x in c)))
             if multi:           # + c Fms(c) f_ss (1 - E) / E  (Kulla & Conty 2017 appendix; Cycles 4.0+)
                 Ea = float(_multiscatter.ggx_E_avg(np.sqrt(alpha)))
-                Fms = c * Ea / (1.0 - c * (1.0 - Ea))
-                lobes.append(Lobe(f"ct:ggx:a={alpha!r}:ms", _multiscatter_part(alpha), tuple(float(x) for x in c * Fms),
-                                  reciprocal=False))
+                lobes.append(Lobe(f"ct:ggx:a={alpha!r}:ms", _times(_microfacet(alpha, "ggx", "none"), _ms_ratio(alpha)),
+                                  tuple(float(x) for x in c * _multiscatter.F_ms(c, Ea)), reciprocal=False))
         elif min(F0) == max(F0):  # grey Fresnel: one lobe with the full Schlick term
             lobes.append(Lobe(f"ct:{dist}:a={alpha!r}:F0={F0[0]!r}",
                               _microfacet(alpha, dist, float(F0[0])),

@@ -23,7 +23,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["TABLE_SIZE", "ggx_E_table", "ggx_E", "ggx_E_avg", "multiscatter_factor"]
+__all__ = ["TABLE_SIZE", "ggx_E_table", "ggx_E", "ggx_E_avg", "F_ms", "multiscatter_factor"]
 
 #: Cycles' ``ggx_E`` table is TABLE_SIZE x TABLE_SIZE over (rough, mu), ``ggx_Eavg`` TABLE_SIZE over rough.
 TABLE_SIZE = 32
@@ -110,6 +110,13 @@ def ggx_E_avg(rough):
     return (1 - t) * Ea[i] + t * Ea[i + 1]
 
 
+def F_ms(Fss, E_avg):
+    """Kulla & Conty's (2017, appendix) multi-bounce Fresnel as Cycles uses it: Fss E_avg / (1 - Fss (1 - E_avg)),
+    with one Fss cancelled (the single-scatter lobe already holds one bounce's Fresnel).  Per channel; dimensionless."""
+    Fss = np.asarray(Fss, np.float64)
+    return Fss * E_avg / (1.0 - Fss * (1.0 - E_avg))
+
+
 def multiscatter_factor(rough, mu, colour=1.0):
     """``1 + Fms (1 - E) / E``: Multiscatter GGX's BRDF over ``colour`` x single-scatter GGX (see the module doc).
 
@@ -117,6 +124,4 @@ def multiscatter_factor(rough, mu, colour=1.0):
     the node's colour (per channel; broadcast).  Dimensionless."""
     E = np.maximum(ggx_E(rough, mu), 1e-6)
     Ea = ggx_E_avg(rough)
-    c = np.asarray(colour, np.float64)
-    Fms = c * Ea / (1.0 - c * (1.0 - Ea))
-    return 1.0 + Fms * (1.0 - E) / E
+    return 1.0 + F_ms(colour, Ea) * (1.0 - E) / E
