@@ -96,6 +96,14 @@ print("done", flush=True)
 """
 
 
+def _size(p) -> int:
+    """Bytes in ``p``, 0 when it vanished between the glob and the stat (the cache's short-lived write probe)."""
+    try:
+        return p.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
 def test_writer_killed_mid_write_leaves_no_half_file_and_the_orphan_is_swept(tmp_path):
     folder = tmp_path / "cache"
     folder.mkdir()
@@ -105,7 +113,7 @@ def test_writer_killed_mid_write_leaves_no_half_file_and_the_orphan_is_swept(tmp
         deadline = time.time() + 60
         tmp = []
         while time.time() < deadline and proc.poll() is None:  # kill once the temp file has data in it
-            tmp = [p for p in folder.glob(".tmp-*") if p.stat().st_size > 0]
+            tmp = [p for p in folder.glob(".tmp-*") if _size(p) > 0]
             if tmp:
                 break
             time.sleep(0.002)
