@@ -105,14 +105,15 @@ def test_bake_operator_fast_path(addon, scene, bs):
     for o in bpy.context.view_layer.objects:
         o.select_set(o in (tile, target))
     bpy.context.view_layer.objects.active = tile
-    res = bpy.ops.scratch.bake_biscale(target=target.name, n_facets=1500, dir_res=6, n_lobes=2)
+    res = bpy.ops.scratch.bake_biscale(target=target.name, n_facets=1500, dir_res=6, n_lobes=2,
+                                       interreflections="OFF")   # the pass is tested in test_biscale_truth_gi
     assert res == {"FINISHED"}
     m = target.data.materials[0]
     assert m["scratch_addon_kind"] == "biscale" and m["biscale_fit_psnr"] > 15
     assert not m.cycles.use_bump_map_correction
     # material-only edit: same mesh -> the cached tile (visibility, N) is reused
     tile.data.materials[1].node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.2, 0.9, 0.2, 1)
-    _, _, _, info = mat.bake(tile, target, n_lobes=1, n_facets=1500, dir_res=6)
+    _, _, _, info = mat.bake(tile, target, n_lobes=1, n_facets=1500, dir_res=6, interreflections=False)
     assert info["reused_tile"]
     assert info["materials"][1]["base_color"][1] == pytest.approx(0.9, abs=1e-6)
 

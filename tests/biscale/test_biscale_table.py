@@ -105,7 +105,8 @@ def test_bake_operator_makes_the_table_by_default(addon, scene):
         tile = ops.add_tile_object(bpy.context, geo.groove_tile(depth=0.4))
         target = addon.render.add_plane(bpy.context.scene, size=2.0)
         bpy.context.view_layer.objects.active = tile
-        assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=6) == {"FINISHED"}
+        assert bpy.ops.scratch.bake_biscale(target=target.name, n_facets=600, dir_res=6,   # mode: the default
+                                            interreflections="OFF") == {"FINISHED"}   # (pass: test_biscale_truth_gi)
         m = target.data.materials[0]
         assert m["biscale_mode"] == "table" and m["tabulated_res"] == btable.closure_res(6)   # the finer table
         assert not m.cycles.use_bump_map_correction
