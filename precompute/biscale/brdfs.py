@@ -96,12 +96,36 @@ def _num(mat, name, default, lo, hi):
     return x
 
 
+def _new(*arrays):
+    """An empty float64 array of the arrays' broadcast shape (0-d included), for ufuncs writing in place."""
+    return np.empty(np.broadcast_shapes(*(np.shape(a) for a in arrays)))
+
+
 def _half(ci, co, cio):
-    """n·h and ωi·h for h = (ωi+ωo)/|ωi+ωo| from the three cosines."""
-    L = np.sqrt(np.maximum(2.0 + 2.0 * cio, 1e-300))
-    nh = np.clip((ci + co) / L, 0.0, 1.0)
-    vh = np.clip(0.5 * L, 0.0, 1.0)
-    return nh, vh
+    """n·h and ωi·h for h = (ωi+ωo)/|ωi+ωo| from the three cosines: |ωi+ωo| = L = √(2 + 2 cio), n·h = (ci + co)/L,
+    ωi·h = L/2 (clamped to [0, 1]; in place, the values of the plain expressions)."""
+    L = np.multiply(2.0, cio, out=_new(cio))
+    L += 2.0
+    np.sqrt(np.maximum(L, 1e-300, out=L), out=L)
+    nh = np.add(ci, co, out=_new(ci, co, cio))
+    nh /= L
+    np.clip(nh, 0.0, 1.0, out=nh)
+    L *= 0.5
+    return nh, np.clip(L, 0.0, 1.0, out=L)
+
+
+def _ggx_lambda(c, a2: float):
+    """Smith Λ of GGX at a direction of cosine c (> 0): (√(1 + α² tan²θ) - 1) / 2, tan²θ = (1 - c²)/c² (in place)."""
+    t = np.maximum(c, 1e-12, out=_new(c))
+    t *= t
+    u = np.subtract(1.0, t, out=_new(t))
+    u *= a2
+    u /= t
+    u += 1.0
+    np.sqrt(u, out=u)
+    u -= 1.0
+    u /= 2
+    return u
 
 
 def _lambert(ci, co, cio):
@@ -152,23 +176,27 @@ class _MicrofacetTerms:
     @functools.cached_property
     def DG(self):
         a2 = self.alpha * self.alpha
-        ci_ = np.maximum(self.ci, 1e-12)
-        co_ = np.maximum(self.co, 1e-12)
         nh = self.nh
         c2 = np.maximum(nh * nh, 1e-150)
-        if self.dist == "beckmann":
-            D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+        if self.dist == "ggx":                  # D = α² / (π (c² (α² - 1) + 1)²), G = 1 / (1 + Λi + Λo); in place
+            c2 *= a2 - 1.0                      # (the bake's BRDF time is mostly here), the same values
+            c2 += 1.0
+            np.square(c2, out=c2)
+            c2 *= np.pi
+            D = np.divide(a2, c2, out=c2)
+            G = _ggx_lambda(self.ci, a2)
+            G += 1.0
+            G = np.add(G, _ggx_lambda(self.co, a2), out=_new(self.ci, self.co))
+            return np.multiply(D, np.divide(1.0, G, out=G), out=D)
+        ci_ = np.maximum(self.ci, 1e-12)
+        co_ = np.maximum(self.co, 1e-12)
+        D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+        if self.dist == "beckmann":             # the original Cook-Torrance V-cavity G
             vh_ = np.maximum(self.vh, 1e-12)
             G = np.minimum(1.0, np.minimum(2 * nh * co_ / vh_, 2 * nh * ci_ / vh_))
-        elif self.dist == "beckmann_smith":     # Cycles' bsdf_D<BECKMANN> and G2 = 1 / (1 + Λi + Λo)
-            D = np.exp(-(1.0 - c2) / (c2 * a2)) / (np.pi * a2 * c2 * c2)
+        else:                                   # "beckmann_smith": Cycles' bsdf_D<BECKMANN>, G2 = 1 / (1 + Λi + Λo)
             li = _cycles_beckmann.beckmann_lambda_from_sqr_alpha_tan_n(a2 * (1 - ci_ * ci_) / (ci_ * ci_))
             lo = _cycles_beckmann.beckmann_lambda_from_sqr_alpha_tan_n(a2 * (1 - co_ * co_) / (co_ * co_))
-            G = 1.0 / (1.0 + li + lo)
-        else:
-            D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
-            li = (-1 + np.sqrt(1 + a2 * (1 - ci_ * ci_) / (ci_ * ci_))) / 2
-            lo = (-1 + np.sqrt(1 + a2 * (1 - co_ * co_) / (co_ * co_))) / 2
             G = 1.0 / (1.0 + li + lo)
         return D * G
 

@@ -28,7 +28,12 @@ def lookup_table_read(table: np.ndarray, x):
 
 
 def lookup_table_read_2D(table: np.ndarray, x, y):
-    """Cycles ``lookup_table_read_2D``: ``table`` (size_x, size_y) indexed [x, y], bilinear at (x, y) (broadcast)."""
+    """Cycles ``lookup_table_read_2D``: ``table`` (size_x, size_y) indexed [x, y], read linearly in x on the two
+    nodes of y around ``y``, then linearly in y (Cycles' order); x, y broadcast.  One x (a material's roughness):
+    the two x nodes are mixed once and the result read along y (the same arithmetic)."""
     i, t = lookup_index(x, table.shape[0])
     j, s = lookup_index(y, table.shape[1])
-    return (1 - t) * ((1 - s) * table[i, j] + s * table[i, j + 1]) + t * ((1 - s) * table[i + 1, j] + s * table[i + 1, j + 1])
+    if np.ndim(i) == 0:
+        along_y = (1 - t) * table[i] + t * table[i + 1]
+        return (1 - s) * along_y.take(j) + s * along_y.take(j + 1)
+    return (1 - s) * ((1 - t) * table[i, j] + t * table[i + 1, j]) + s * ((1 - t) * table[i, j + 1] + t * table[i + 1, j + 1])
