@@ -143,7 +143,7 @@ class _MicrofacetTerms:
     """What the microfacet lobes of one material share at one batch of cosines (ci, co, cio), each made on first use
     and then reused by every lobe (``eval_material``: once per batch, not once per lobe):
 
-    - ``nh``, ``vh``: n·h and ωi·h of the half vector; ``x5`` = (1 - ωi·h)⁵ (Schlick's Fresnel weight);
+    - ``nh``, ``vh``: n·h and ωi·h of the half vector; ``x`` = 1 - ωi·h, ``x5`` = x⁵ (Schlick's Fresnel weight);
     - ``DG``: distribution x shadowing D G (``dist``: "ggx" height-correlated Smith, "beckmann" the V-cavity G,
       "beckmann_smith" Cycles' Beckmann), ``four_cc`` = 4 ci co, ``ss`` = D G / (4 ci co): the microfacet BRDF with
       F = 1 (single-scatter GGX for "ggx"), 1/sr;
@@ -170,8 +170,13 @@ class _MicrofacetTerms:
         return self._nh_vh[1]
 
     @functools.cached_property
-    def x5(self):
-        return (1.0 - self.vh) ** 5
+    def x(self):
+        return 1.0 - self.vh
+
+    @functools.cached_property
+    def x5(self):                               # x⁵ as products: pow() took 3.7 s of a 35 s bake (its slow cases)
+        x2 = self.x * self.x
+        return x2 * x2 * self.x
 
     @functools.cached_property
     def DG(self):
@@ -284,7 +289,7 @@ def _principled_lobes(mat) -> list:
         add("metal:f0", lambda T: T.ss * (1.0 - T.x5), metal * b, Fss)
         add("metal:one", lambda T: T.ss * T.x5, metal * np.ones(3), Fss)
         if np.any(B != 0):
-            add("metal:B", lambda T: T.ss * (T.vh * (1.0 - T.vh) ** 6), -metal * B, Fss)
+            add("metal:B", lambda T: T.ss * (T.vh * (T.x5 * T.x)), -metal * B, Fss)
     if w > 0:
         f0t = np.clip(f0 * tint, 0.0, 1.0)
         if eta != 1.0:                      # F = mix(f0 t, 1, s(c)), s the real curve's factor
