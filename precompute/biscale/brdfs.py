@@ -182,7 +182,7 @@ class _MicrofacetTerms:
     def DG(self):
         a2 = self.alpha * self.alpha
         nh = self.nh
-        c2 = np.maximum(nh * nh, 1e-150)
+        c2 = np.maximum(nh * nh, 1e-150, out=_new(nh))
         if self.dist == "ggx":                  # D = α² / (π (c² (α² - 1) + 1)²), G = 1 / (1 + Λi + Λo); in place
             c2 *= a2 - 1.0                      # (the bake's BRDF time is mostly here), the same values
             c2 += 1.0

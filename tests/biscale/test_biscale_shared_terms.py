@@ -119,6 +119,8 @@ def test_shared_terms_give_each_lobes_own_value(k):
                      for lb in lobes]
     got = brdfs.eval_material(counted_lobes, n, wi, wo)
     np.testing.assert_allclose(got, one_by_one, rtol=1e-12, atol=1e-14 * np.abs(one_by_one).max())
+    one = brdfs.eval_material(MATERIALS[k], n[7, 0, 0], wi[0, 11, 0], wo[0, 0, 13])    # single vectors (0-d cosines)
+    np.testing.assert_allclose(one, got[7, 11, 13], rtol=1e-12, atol=1e-14 * np.abs(one_by_one).max())
     assert len(set(shared)) == min(len(shared), 1) and len(made) == min(len(shared), 1), (len(shared), len(made))
 
 
