@@ -38,6 +38,7 @@ import numpy as np
 from ..node_groups import biscale as biscale_groups
 from ..osl import biscale_reference
 from ..precompute.biscale import fit as fitmod
+from ..precompute.cycles import principled as cycles_principled
 from ..precompute.biscale import table as biscale_table
 from ..precompute.biscale.bake import bake_tables, check_inputs, get_tile, mesh_hash, table_dir  # noqa: F401 - re-exports
 from . import osl_compile, render_paths, tabulated_material, transaction
@@ -106,10 +107,10 @@ def small_scale_material(mat) -> dict:
         exact = _principled_dict(node)
         if exact is not None:
             return exact
-        base = np.array(clamp(_val(node, "Base Color", (0.8, 0.8, 0.8, 1))))
-        metal = float(np.clip(_val(node, "Metallic", 0.0), 0, 1))
-        rough = float(np.clip(_val(node, "Roughness", 0.5), 0, 1))
-        spec = float(np.clip(_val(node, "Specular IOR Level", 0.5), 0, 1))
+        base = np.array(clamp(_principled_input(node, "base_color")))
+        metal = float(np.clip(_principled_input(node, "metallic"), 0, 1))
+        rough = float(np.clip(_principled_input(node, "roughness"), 0, 1))
+        spec = float(np.clip(_principled_input(node, "specular_ior_level"), 0, 1))
         f0 = (1 - metal) * min(0.08 * spec, 1.0) + metal * base
         return {"model": "cook_torrance", "distribution": "ggx", "alpha": max(rough * rough, 1e-3),
                 "F0": tuple(float(x) for x in np.clip(f0, 0, 1)), "kd": tuple(float(x) for x in base * (1 - metal)),
@@ -136,27 +137,33 @@ def small_scale_material(mat) -> dict:
     return {"model": "lambert", "albedo": clamp(mat.diffuse_color)}
 
 
+def _principled_input(node, key: str):
+    """The Principled BSDF node's input of ``principled.PRINCIPLED_DEFAULTS[key]`` (that default when it has no such
+    socket)."""
+    return _val(node, cycles_principled.PRINCIPLED_SOCKETS[key], cycles_principled.PRINCIPLED_DEFAULTS[key])
+
+
 def _principled_dict(node):
     """``principled`` dict of a Principled BSDF node whose inputs the exact twin covers (no coat, sheen,
     transmission, subsurface, thin film, diffuse roughness, anisotropy; the inputs it reads unlinked; GGX or
     Multiscatter GGX), else None."""
-    from ..precompute.cycles import principled as pr
-
-    names = ("Base Color", "Metallic", "Roughness", "IOR", "Specular IOR Level", "Specular Tint", "Coat Weight",
-             "Sheen Weight", "Transmission Weight", "Subsurface Weight", "Thin Film Thickness", "Diffuse Roughness",
-             "Anisotropic", "Alpha")
+    pr = cycles_principled
+    others = ("Coat Weight", "Sheen Weight", "Transmission Weight", "Subsurface Weight", "Thin Film Thickness",
+              "Diffuse Roughness", "Anisotropic", "Alpha")
     if node.distribution not in ("GGX", "MULTI_GGX") or any(
-            node.inputs.get(k) is not None and node.inputs[k].is_linked for k in names):
+            node.inputs.get(k) is not None and node.inputs[k].is_linked
+            for k in (*pr.PRINCIPLED_SOCKETS.values(), *others)):
         return None
-    if not pr.principled_supported({k: _val(node, k, 0.0 if k != "Alpha" else 1.0) for k in names[6:]}):
+    if not pr.principled_supported({k: _val(node, k, 0.0 if k != "Alpha" else 1.0) for k in others}):
         return None
     rgb = lambda c, hi=1.0: tuple(float(np.clip(x, 0.0, hi)) for x in list(c)[:3])  # noqa: E731
-    return {"model": "principled", "base_color": rgb(_val(node, "Base Color", (0.8, 0.8, 0.8, 1))),
-            "metallic": float(np.clip(_val(node, "Metallic", 0.0), 0, 1)),
-            "roughness": float(np.clip(_val(node, "Roughness", 0.5), 0, 1)),
-            "ior": float(np.clip(_val(node, "IOR", 1.5), 1e-3, 1e3)),
-            "specular_ior_level": float(np.clip(_val(node, "Specular IOR Level", 0.5), 0, 1e3)),
-            "specular_tint": rgb(_val(node, "Specular Tint", (1, 1, 1, 1)), 1e3),
+    pin = lambda key: _principled_input(node, key)  # noqa: E731
+    return {"model": "principled", "base_color": rgb(pin("base_color")),
+            "metallic": float(np.clip(pin("metallic"), 0, 1)),
+            "roughness": float(np.clip(pin("roughness"), 0, 1)),
+            "ior": float(np.clip(pin("ior"), 1e-3, 1e3)),
+            "specular_ior_level": float(np.clip(pin("specular_ior_level"), 0, 1e3)),
+            "specular_tint": rgb(pin("specular_tint"), 1e3),
             "multiscatter": node.distribution == "MULTI_GGX"}
 
 

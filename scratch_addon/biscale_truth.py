@@ -9,6 +9,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ..precompute.cycles import principled as cycles_principled
 from . import render
 from .materials import ensure_nodes, new_material
 
@@ -70,14 +71,12 @@ def _principled_material(mat: dict, name: str) -> bpy.types.Material:
         tree.nodes.remove(nd)
     out = next(nd for nd in tree.nodes if nd.bl_idname == "ShaderNodeOutputMaterial")
     p = tree.nodes.new("ShaderNodeBsdfPrincipled")
-    p.distribution = "MULTI_GGX" if mat.get("multiscatter", True) else "GGX"
-    rgb = lambda v: (*[float(x) for x in np.broadcast_to(np.asarray(v, float), 3)], 1.0)  # noqa: E731
-    p.inputs["Base Color"].default_value = rgb(mat.get("base_color", 0.8))
-    p.inputs["Metallic"].default_value = float(mat.get("metallic", 0.0))
-    p.inputs["Roughness"].default_value = float(mat.get("roughness", 0.5))
-    p.inputs["IOR"].default_value = float(mat.get("ior", 1.5))
-    p.inputs["Specular IOR Level"].default_value = float(mat.get("specular_ior_level", 0.5))
-    p.inputs["Specular Tint"].default_value = rgb(mat.get("specular_tint", 1.0))
+    d = {**cycles_principled.PRINCIPLED_DEFAULTS, **mat}     # the twin's defaults (the node's), one copy
+    p.distribution = "MULTI_GGX" if d["multiscatter"] else "GGX"
+    for key, socket in cycles_principled.PRINCIPLED_SOCKETS.items():
+        v = np.asarray(d[key], float)
+        p.inputs[socket].default_value = ((*np.broadcast_to(v, 3).tolist(), 1.0) if key in ("base_color", "specular_tint")
+                                          else float(v))
     tree.links.new(p.outputs["BSDF"], out.inputs["Surface"])
     return m
 

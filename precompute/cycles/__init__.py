@@ -5,4 +5,5 @@
 - ``glossy``    the Glossy node's (roughness, anisotropy) <-> (alpha_u, alpha_v) mapping, in one place
 - ``multiscatter``  Multiscatter GGX's energy preservation (E, E_avg on Cycles' table nodes)
 - ``principled``    the Principled BSDF of an opaque surface (F82 metal, real-curve dielectric, layered base)
+- ``lookup``        Cycles' linear reads of those tables (``lookup_table_read``, ``_2D``) on their nodes
 """

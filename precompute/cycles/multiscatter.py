@@ -23,6 +23,8 @@ import functools
 
 import numpy as np
 
+from .lookup import lookup_table_read, lookup_table_read_2D
+
 __all__ = ["TABLE_SIZE", "ggx_E_table", "ggx_E", "ggx_E_avg", "F_ms", "multiscatter_factor"]
 
 #: Cycles' ``ggx_E`` table is TABLE_SIZE x TABLE_SIZE over (rough, mu), ``ggx_Eavg`` TABLE_SIZE over rough.
@@ -89,25 +91,14 @@ def ggx_E_table(n: int = 64) -> tuple[np.ndarray, np.ndarray]:
     return E, E_avg
 
 
-def _lerp_index(x):
-    x = np.clip(np.asarray(x, np.float64), 0.0, 1.0) * (TABLE_SIZE - 1)
-    i = np.minimum(np.floor(x).astype(np.int64), TABLE_SIZE - 2)
-    return i, x - i
-
-
 def ggx_E(rough, mu):
     """Cycles' ``lookup_table_read_2D(rough, mu, ggx_E)``: bilinear on the 32 x 32 nodes; arrays broadcast."""
-    E, _ = ggx_E_table()
-    i, t = _lerp_index(rough)
-    j, s = _lerp_index(mu)
-    return ((1 - t) * ((1 - s) * E[i, j] + s * E[i, j + 1]) + t * ((1 - s) * E[i + 1, j] + s * E[i + 1, j + 1]))
+    return lookup_table_read_2D(ggx_E_table()[0], rough, mu)
 
 
 def ggx_E_avg(rough):
     """Cycles' ``lookup_table_read(rough, ggx_Eavg)``: linear on the 32 nodes."""
-    _, Ea = ggx_E_table()
-    i, t = _lerp_index(rough)
-    return (1 - t) * Ea[i] + t * Ea[i + 1]
+    return lookup_table_read(ggx_E_table()[1], rough)
 
 
 def F_ms(Fss, E_avg):

@@ -29,15 +29,21 @@ import functools
 import numpy as np
 
 from . import multiscatter
+from .lookup import lookup_index, lookup_table_read_2D
 
 __all__ = ["F0_from_ior", "ior_from_F0", "fresnel_dielectric", "fresnel_dielectric_Fss", "f82_tint_B",
-           "real_curve_s", "gen_schlick_ior_s", "dielectric_f0_eta", "principled_supported", "PRINCIPLED_DEFAULTS"]
+           "real_curve_s", "gen_schlick_ior_s", "dielectric_f0_eta", "principled_supported", "PRINCIPLED_DEFAULTS",
+           "PRINCIPLED_SOCKETS"]
 
 #: Cycles' ``ggx_gen_schlick_ior_s`` table size per axis (rough, μ, z)
 S_TABLE = 16
-#: the node's defaults (Blender 4.x / 5.0) for the inputs the twin reads
+#: the node's defaults (Blender 4.x / 5.0) for the inputs the twin reads, and its default distribution (Multiscatter
+#: GGX): the one copy the bake's reader (``scratch_addon.biscale_material``), ``biscale.brdfs`` and the truth builder use
 PRINCIPLED_DEFAULTS = {"base_color": (0.8, 0.8, 0.8), "metallic": 0.0, "roughness": 0.5, "ior": 1.5,
-                       "specular_ior_level": 0.5, "specular_tint": (1.0, 1.0, 1.0)}
+                       "specular_ior_level": 0.5, "specular_tint": (1.0, 1.0, 1.0), "multiscatter": True}
+#: the node's input socket of each ``PRINCIPLED_DEFAULTS`` key (``multiscatter``: the node's distribution)
+PRINCIPLED_SOCKETS = {"base_color": "Base Color", "metallic": "Metallic", "roughness": "Roughness", "ior": "IOR",
+                      "specular_ior_level": "Specular IOR Level", "specular_tint": "Specular Tint"}
 
 
 def F0_from_ior(ior):
@@ -117,20 +123,10 @@ def _s_slice(k: int, n: int = 48) -> np.ndarray:
 def gen_schlick_ior_s(rough, mu, ior: float):
     """Cycles ``lookup_table_read_3D(rough, μ, z, ggx_gen_schlick_ior_s)``: trilinear on the 16³ nodes, z =
     sqrt(|η - 1|/(η + 1)).  ``rough``, ``mu`` broadcast; one η."""
-    z = float(np.clip(np.sqrt(abs((ior - 1.0) / (ior + 1.0))), 0.0, 1.0)) * (S_TABLE - 1)
-    k = min(int(z), S_TABLE - 2)
-    t = z - k
-    x = np.clip(np.asarray(rough, np.float64), 0.0, 1.0) * (S_TABLE - 1)
-    i = np.minimum(np.floor(x).astype(np.int64), S_TABLE - 2)
-    a = x - i
-    y = np.clip(np.asarray(mu, np.float64), 0.0, 1.0) * (S_TABLE - 1)
-    j = np.minimum(np.floor(y).astype(np.int64), S_TABLE - 2)
-    b = y - j
-
-    def bilerp(S):
-        return (1 - a) * ((1 - b) * S[i, j] + b * S[i, j + 1]) + a * ((1 - b) * S[i + 1, j] + b * S[i + 1, j + 1])
-    lo = bilerp(_s_slice(k))
-    return lo if t == 0.0 else (1 - t) * lo + t * bilerp(_s_slice(k + 1))
+    k, t = lookup_index(np.sqrt(abs((ior - 1.0) / (ior + 1.0))), S_TABLE)
+    k, t = int(k), float(t)
+    lo = lookup_table_read_2D(_s_slice(k), rough, mu)
+    return lo if t == 0.0 else (1 - t) * lo + t * lookup_table_read_2D(_s_slice(k + 1), rough, mu)
 
 
 def principled_supported(inputs: dict) -> bool:

@@ -111,7 +111,8 @@ def test_bake_operator_fast_path(addon, scene, bs):
     m = target.data.materials[0]
     assert m["scratch_addon_kind"] == "biscale" and m["biscale_fit_psnr"] > 15
     assert not m.cycles.use_bump_map_correction
-    # material-only edit: same mesh -> the cached tile (visibility, N) is reused
+    # material-only edit: same mesh -> the cached tile (visibility, N) is reused (without the inter-reflection pass,
+    # which the first bake ran: what is checked here is the reuse and the edit read, not the pass again)
     tile.data.materials[1].node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.2, 0.9, 0.2, 1)
     _, _, _, info = mat.bake(tile, target, n_lobes=1, n_facets=1500, dir_res=6, interreflections=False)
     assert info["reused_tile"]

@@ -172,3 +172,37 @@ def test_slot_lobes_match_cycles_under_a_sun(addon, scene, render_dir):
             want = img.reshape(-1, 3).mean(0)
             got = brdfs.eval_material(d, np.array([0.0, 0.0, 1.0]), L, V) * L[2]
             np.testing.assert_allclose(got, want, rtol=0.005, err_msg=f"{d} view {tv}/{pv} light {tl}/{pl}")
+
+
+@pytest.mark.bpy
+def test_principled_defaults_are_the_nodes_and_round_trip(addon, scene):
+    """``principled.PRINCIPLED_DEFAULTS`` (the one copy of the twin's defaults) are a new Principled BSDF node's: the
+    bake reads a fresh node as exactly that dict; and a ``principled`` dict, full or partial, built as a node by the
+    truth builder (``biscale_truth``) reads back as itself with the missing inputs at those defaults (float32
+    sockets: 1e-6)."""
+    import bpy
+
+    root = addon.__name__.rpartition(".")[0]
+    bm = importlib.import_module(addon.__name__ + ".biscale_material")
+    bt = importlib.import_module(addon.__name__ + ".biscale_truth")
+    pr = importlib.import_module(root + ".precompute.cycles.principled")
+    m = bpy.data.materials.new("fresh principled")
+    tree = m.node_tree
+    tree.nodes.clear()
+    p = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    tree.links.new(p.outputs["BSDF"], tree.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+
+    def close(got, want):
+        assert got.keys() == want.keys(), (got, want)
+        for k, v in want.items():
+            if isinstance(v, (bool, str)):
+                assert got[k] == v and type(got[k]) is type(v), (k, got, want)
+            else:
+                np.testing.assert_allclose(np.asarray(got[k], float), np.broadcast_to(np.asarray(v, float),
+                                           np.shape(got[k])), atol=1e-6, err_msg=k)
+    close(bm.small_scale_material(m), {"model": "principled", **pr.PRINCIPLED_DEFAULTS})
+    for d in ({"model": "principled"},
+              {"model": "principled", "base_color": (0.9, 0.6, 0.3), "metallic": 1.0, "roughness": 0.4},
+              {"model": "principled", "base_color": 0.3, "metallic": 0.25, "roughness": 0.7, "ior": 1.8,
+               "specular_ior_level": 0.7, "specular_tint": (1.0, 0.6, 0.3), "multiscatter": False}):
+        close(bm.small_scale_material(bt.small_scale_blender_material(d)), {**pr.PRINCIPLED_DEFAULTS, **d})
