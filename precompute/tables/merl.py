@@ -289,7 +289,7 @@ def floor_points(table, brdf: TabulatedBRDF, measured=None, read=None) -> dict:
     √(θh/90°) 90), far finer than the table's cells (π/(2 res): 1.9° at 48²), so a floor as sharp as the file's
     peak keeps r >= 0 where the table cannot see it.  ``ok``: ωi above the horizon and the bin measured
     (``measured`` (90, 90, 180) bool, default all); ``alpha_min``: the GGX α whose half width spans
-    ``POINT_BINS_PER_WIDTH`` θh bin centres (α 0.0037)."""
+    ``POINT_BINS_PER_WIDTH`` θh bin centres (α 0.0019)."""
     th_c = bin_centres()[0][:, 0, 0]
     K = int(np.searchsorted(th_c, POINT_CELLS * cell_angle(brdf.res)))
     ph = (np.arange(POINT_PHI) + 0.5) / POINT_PHI * 2 * np.pi

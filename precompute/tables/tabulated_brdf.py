@@ -99,7 +99,7 @@ albedo (a 2-variable linear programme per (dist, α)), (dist, α_g) by a log gri
 "auto" uses it when it takes >= ``GLOSSY_SHARE_MIN`` (10 %) of the table's hemispherical albedo.  **Floor points**
 (``floor_points``, a MERL import's ``info["floor_points"]``): r >= 0 is also required at the file's own θh bins near
 the peak (0.01-0.1° apart, far finer than a cell), so the floor may be narrower than a cell (``glossy_floor_alpha_min``
-then 0.0037): a GGX α 0.02 file at 48² (1.9° cells) gets a GGX α 0.02 floor that takes 96 % of it, and the table only
+then 0.0019): a GGX α 0.02 file at 48² (1.9° cells) gets a GGX α 0.02 floor that takes 96 % of it, and the table only
 a small residual (Session 10; the floor no narrower than a cell left it 27 % off under a striped world); the horizon
 cells then do not bind ks (``_horizon_cells``, their clamp bounded by ``_bound_clamp``).  Measured
 (``bench/out/tabulated_floor.md``): GGX + Lambert MERL 8 spp pixel error 467 % -> 8.6 % on SVM (analytic
@@ -128,7 +128,7 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
            "lambert_nodes", "floor_split", "closure_albedo",
            "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
            "glossy_eval", "FLOOR_DISTS", "floor_ks",
-           "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo"]
+           "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo", "floor_points", "CLAMP_MAX"]
 
 #: Largest ωi grid side.
 MAX_RES = 48
@@ -1085,8 +1085,9 @@ def floor_points(brdf) -> dict | None:
     if pts is None:
         return None
     n_o = brdf.table.shape[1]
-    if not (isinstance(pts, dict) and np.shape(pts.get("wi")) [:1] == (n_o,) and np.shape(pts.get("f")) == np.shape(pts.get("wi"))
-            and np.shape(pts.get("ok")) == np.shape(pts.get("wi"))[:2]):
+    shape = np.shape(pts.get("wi")) if isinstance(pts, dict) else ()
+    if not (len(shape) == 3 and shape[0] == n_o and shape[2] == 3 and np.shape(pts.get("f")) == shape
+            and np.shape(pts.get("ok")) == shape[:2] and "alpha_min" in pts):
         raise ValueError(f"info: floor_points must hold wi, f (n_o = {n_o}, P, 3), ok (n_o, P) and alpha_min")
     return pts
 
@@ -1230,12 +1231,14 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
         a0, dg = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))      # ties: GGX
         best_share = (memo[(a0, dg)][0] - np.sum(memo[(a0, dg)][1])) / 3.0 / max(E_f, 1e-30)
         if best_share >= min_share:                        # refine the best distribution's α
-            # with floor points, every distribution's own best: a GGX floor under a sharp GGX file peaks within
-            # ±10 % of the file's α (GGX α 0.02 gold: share 0.96 there, 0.83 at the grid's 0.018), a Beckmann one
-            # is flatter and wins the grid (0.66)
-            for d in (dists if pts is not None else (dg,)):
-                a0 = max((k for k in memo if k[1] == d), key=lambda k: memo[k][0])[0]
-                _golden(lambda x: solve(np.exp(x), d)[0], grid, a0, 8 if pts is None else 12)
+            # with floor points, also the other distribution's own best when its grid value is at least half the
+            # best: a GGX floor under a sharp GGX file peaks within a few % of the file's α (GGX α 0.02 gold: floor
+            # share 0.96 there, 0.83 at α 0.018), so the grid can rank a flatter Beckmann floor first
+            best = memo[(a0, dg)][0]
+            for d in dists if pts is not None else (dg,):
+                k0 = max((k for k in memo if k[1] == d), key=lambda k: memo[k][0])
+                if d == dg or memo[k0][0] >= 0.5 * best:
+                    _golden(lambda x: solve(np.exp(x), d)[0], grid, k0[0], 8 if pts is None else 12)
     a_best, d_best = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))    # ties: GGX
     total, kd, ks, g, Eg = memo[(a_best, d_best)]
     if kd.max() <= 1e-6:
