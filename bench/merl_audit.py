@@ -23,6 +23,7 @@ where they are the same).
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import tempfile
 import time
@@ -86,7 +87,7 @@ def beckmann_material(name="analytic beckmann"):
     return m
 
 
-def gold_material(name="analytic gold"):
+def gold_material(name="analytic gold", alpha=0.05):
     from scratch_materials.scratch_addon.materials import new_material
 
     m = new_material(name)
@@ -97,12 +98,16 @@ def gold_material(name="analytic gold"):
     g.distribution = "GGX"
     g.inputs["IOR"].default_value = GOLD_N
     g.inputs["Extinction"].default_value = GOLD_K
-    g.inputs["Roughness"].default_value = math.sqrt(0.05)
+    g.inputs["Roughness"].default_value = math.sqrt(alpha)
     tree.links.new(g.outputs["BSDF"], out.inputs["Surface"])
     return m
 
 
 BRDFS = {"beckmann": (beckmann_lambert, beckmann_material), "gold": (gold_ggx, gold_material)}
+#: sharper gold files (Session 10: peaks narrower than the 48² cells): not in the default run
+SHARP_BRDFS = {f"gold{a}": (functools.partial(gold_ggx, alpha=a), functools.partial(gold_material, f"analytic gold {a}", a))
+               for a in (0.02, 0.01)}
+ALL_BRDFS = {**BRDFS, **SHARP_BRDFS}
 
 
 def _view(theta, phi):
@@ -163,7 +168,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--spp", type=int, default=256)
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--views", default="")
-    ap.add_argument("--brdfs", default=",".join(BRDFS))
+    ap.add_argument("--brdfs", default=",".join(BRDFS), help=f"of {', '.join(ALL_BRDFS)}")
     ap.add_argument("--no-eevee", action="store_true")
     ap.add_argument("--eevee-samples", type=int, default=64)
     ap.add_argument("--res", default="auto", help="Direction Resolution of the import: 'auto' (the operator's "
@@ -185,7 +190,7 @@ def main(argv: list[str]) -> int:
     rows, notes = [], []
     seeds = tuple(range(7, 7 + args.seeds))
     for name in args.brdfs.split(","):
-        f, make = BRDFS[name]
+        f, make = ALL_BRDFS[name]
         path = f"{tmp}/{name}.binary"
         t0 = time.perf_counter()
         merl.write_merl(path, merl.tabulate(f))

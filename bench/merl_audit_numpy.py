@@ -85,11 +85,11 @@ def lamp_radiance(f, wo, nl=160, npts=3):
 
 def main(argv: list[str]) -> int:
     from bench._util import report
-    from bench.merl_audit import BRDFS, VIEWS, _view
+    from bench.merl_audit import ALL_BRDFS, BRDFS, VIEWS, _view
     from scratch_materials.precompute.tables import merl, tabulated_brdf as tb
 
     ap = argparse.ArgumentParser(prog="bench merl_audit_numpy")
-    ap.add_argument("--brdfs", default=",".join(BRDFS))
+    ap.add_argument("--brdfs", default=",".join(BRDFS), help=f"of {', '.join(ALL_BRDFS)}")
     ap.add_argument("--sizes", default="auto,32/32/0")
     ap.add_argument("--quick", action="store_true", help="gold, auto only, lamp at the mirror view")
     args = ap.parse_args(argv)
@@ -98,7 +98,7 @@ def main(argv: list[str]) -> int:
         brdfs, sizes, views, lights = ["gold"], ["auto"], [(35.0, 326.0)], ("lamp",)
     rows = []
     for name in brdfs:
-        f = BRDFS[name][0]
+        f = ALL_BRDFS[name][0]
         T = merl.fill_missing(np.maximum(merl.tabulate(f), 0.0))
         width = merl.lobe_width(T)
         for spec in sizes:

@@ -19,7 +19,7 @@ Rounds interleave after / before (A/B/A/B), wall seconds in this process, median
 ``--auto``: the import's automatic resolution (``merl_ops.material_from_merl`` default: the grid from the file's
 peak, ``merl.auto_resolution``) against the old default 32² x 32, CPU seconds (``time.process_time``: the machine is
 shared) of a first import (the floor search's caches cleared each round), median over ``--rounds``; files: the two
-above and the merl_audit's gold (GGX α 0.05 conductor) and Beckmann α 0.1 + Lambert; writes
+above and the merl_audit's gold (GGX α 0.05 conductor; and α 0.02, Session 10) and Beckmann α 0.1 + Lambert; writes
 ``bench/out/merl_import_auto.md``.
 """
 from __future__ import annotations
@@ -146,11 +146,12 @@ def auto_main(rounds: int) -> int:
     def cold():
         for cache in (tb._FLOOR_CACHE, tb._HEMI_ALBEDO, tb._ALBEDO_MEMO):
             cache.clear()
-        tb._LOBES.update(layout=None, pairs=None, g={})
+        tb._LOBES.update(layout=None, geom=None, g={})
 
     folder = tempfile.mkdtemp(prefix="bench_merl_")
     files = _files(folder)
-    for name, f in (("gold (merl_audit)", gold_ggx), ("beckmann (merl_audit)", beckmann_lambert)):
+    for name, f in (("gold (merl_audit)", gold_ggx), ("beckmann (merl_audit)", beckmann_lambert),
+                    ("gold0.02 (merl_audit)", lambda wi, wo: gold_ggx(wi, wo, 0.02))):
         files[name] = os.path.join(folder, name.split()[0] + ".binary")
         merl.write_merl(files[name], merl.tabulate(f))
     rows, load0 = [], os.getloadavg()[0]

@@ -110,6 +110,20 @@ def material_from_merl(path, name: str | None = None, res="auto", n_theta: int |
     return mat
 
 
+def sharp_peak_text(mat, cell_deg: float) -> str:
+    """What happens to a peak sharper than the table's cells (``cell_deg``): the glossy floor renders it exactly when
+    its lobe is narrower than a cell (``merl.floor_points`` let it fit the file's own θh bins; custom properties
+    ``tabulated_glossy_floor`` = (ks, α_g), ``tabulated_glossy_floor_dist``), else the table's cells blur it."""
+    floor = list(mat.get("tabulated_glossy_floor", ()))
+    dist = str(mat.get("tabulated_glossy_floor_dist", ""))
+    if len(floor) == 4 and dist and max(floor[:3]) > 0:
+        a = float(floor[3])
+        half_deg = float(np.degrees(np.arctan((0.644 if dist == "ggx" else 0.833) * a)))
+        if half_deg < cell_deg:
+            return f"the peak is sharper than the cells, rendered by the glossy floor ({dist.upper()} α {a:.2g})"
+    return "the peak is sharper than the cells: highlights may blur"
+
+
 def import_summary(mat) -> str:
     """One line on an imported material: what renders where, and its energy against the file's."""
     paths = {"table": "the table", "fit": "a fitted Diffuse + Glossy twin"}
@@ -123,7 +137,7 @@ def import_summary(mat) -> str:
     if "merl_peak_width_deg" in mat:
         w, cell = float(mat["merl_peak_width_deg"]), 90.0 / max(res, 1)
         text += (" (auto" if mat.get("merl_res_auto") else " (set") + f": peak half width {w:.2g}°, cells {cell:.2g}°"
-        text += "; the peak is sharper than the cells: highlights may blur)" if mat.get("merl_sharper_than_table") else ")"
+        text += ("; " + sharp_peak_text(mat, cell) + ")") if mat.get("merl_sharper_than_table") else ")"
     text += f", {where}"
     if "merl_albedo_table" in mat:
         views, got, want = (list(mat[k]) for k in ("merl_albedo_views", "merl_albedo_table", "merl_albedo_file"))

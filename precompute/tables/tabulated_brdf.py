@@ -96,7 +96,12 @@ sample; r >= 0 at every node (``glossy_nodes``: g in the table's layout).  (kd, 
 albedo (a 2-variable linear programme per (dist, α)), (dist, α_g) by a log grid and a golden-section search
 (both tails are needed: a GGX floor cannot sit under a Beckmann lobe); isotropic tables take ks per θo node
 (``ks_view``, linear in θo), because one bad row (a MERL file's grazing bins) would cap a shared ks (0.43 vs 0.8).
-"auto" uses it when it takes >= ``GLOSSY_SHARE_MIN`` (10 %) of the table's hemispherical albedo.  Measured
+"auto" uses it when it takes >= ``GLOSSY_SHARE_MIN`` (10 %) of the table's hemispherical albedo.  **Floor points**
+(``floor_points``, a MERL import's ``info["floor_points"]``): r >= 0 is also required at the file's own θh bins near
+the peak (0.01-0.1° apart, far finer than a cell), so the floor may be narrower than a cell (``glossy_floor_alpha_min``
+then 0.0019): a GGX α 0.02 file at 48² (1.9° cells) gets a GGX α 0.02 floor that takes 96 % of it, and the table only
+a small residual (Session 10; the floor no narrower than a cell left it 27 % off under a striped world); the horizon
+cells then do not bind ks (``_horizon_cells``, their clamp bounded by ``_bound_clamp``).  Measured
 (``bench/out/tabulated_floor.md``): GGX + Lambert MERL 8 spp pixel error 467 % -> 8.6 % on SVM (analytic
 material 3.8 %), 210 % -> 46 % on OSL; a Beckmann + Lambert file 1234 % -> 7.8 % (SVM), 834 % -> 17 % (OSL).
 
@@ -123,7 +128,7 @@ __all__ = ["TabulatedBRDF", "ClosureTables", "closure_tables", "sample", "pdf", 
            "lambert_nodes", "floor_split", "closure_albedo",
            "floor_parts", "glossy_floor_split", "FloorParts", "floor_eval", "floor_mode", "glossy_albedo", "glossy_nodes",
            "glossy_eval", "FLOOR_DISTS", "floor_ks",
-           "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo"]
+           "GLOSSY_SHARE_MIN", "FLOOR_MODES", "glossy_floor_alpha_min", "floor_albedo", "floor_points", "CLAMP_MAX"]
 
 #: Largest ωi grid side.
 MAX_RES = 48
@@ -965,7 +970,7 @@ _FLOOR_CACHE: dict = {}
 
 #: the glossy floor search's lobes in one table layout (``_layout_lobes``): an edit of a table (a bi-scale colour,
 #: a re-import) keeps its layout, so the search's 16 grid lobes are evaluated once per layout, not per table
-_LOBES: dict = {"layout": None, "pairs": None, "g": {}}
+_LOBES: dict = {"layout": None, "geom": None, "g": {}}
 _ALBEDO_MEMO: dict = {}
 
 
@@ -987,15 +992,47 @@ def _layout_lobes(brdf):
     most 48 lobes of one layout, 1 MB each for a bi-scale 19² x 19x19 table)."""
     key = _layout_key(brdf)
     if _LOBES["layout"] != key:
-        _LOBES.update(layout=key, pairs=_node_pairs(brdf), g={})
+        _LOBES.update(layout=key, geom=_node_geometry(_node_pairs(brdf)), g={})
 
     def lobe(a: float, dg: str) -> np.ndarray:
         if (a, dg) not in _LOBES["g"]:
             if len(_LOBES["g"]) >= 48:
                 _LOBES["g"].clear()
-            _LOBES["g"][(a, dg)] = glossy_nodes(brdf, a, dg, _LOBES["pairs"])
+            _LOBES["g"][(a, dg)] = _geometry_nodes(_LOBES["geom"], a, dg)
         return _LOBES["g"][(a, dg)]
     return lobe
+
+
+def _node_geometry(pairs) -> dict:
+    """What ``glossy_eval`` needs of the node pairs (``_node_pairs``), once per layout: cos² θh, cos θi, cos θo of the
+    pairs with weight > 0, their weights and node index (a node sums its cell's pairs)."""
+    wi, wo, w, sub = pairs
+    n_o, P = w.shape
+    keep = np.flatnonzero(w.ravel() != 0)
+    WI = wi.reshape(-1, 3)[keep]
+    WO = np.broadcast_to(wo, wi.shape).reshape(-1, 3)[keep]
+    h = WI + WO
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    o, p = np.divmod(keep, P)
+    return {"c2": h[:, 2] ** 2, "zi": WI[:, 2], "zo": WO[:, 2], "w": w.ravel()[keep],
+            "node": (p // (sub * sub)) * n_o + o, "shape": (P // (sub * sub), n_o), "sub": sub}
+
+
+def _geometry_nodes(geom: dict, alpha: float, dist: str) -> np.ndarray:
+    """``glossy_nodes`` from the cached pair geometry (``_node_geometry``): the same D G2 / (4 cos θi cos θo) as
+    ``glossy_eval`` (GGX: ``_ggx_unit``; Beckmann: ``beckmann.beckmann_aniso_D`` with hx² + hy² = 1 - hz²), without
+    re-deriving the half vectors per α (the floor search evaluates ~30 α on 10⁶ pairs)."""
+    c2, zi, zo = geom["c2"], geom["zi"], geom["zo"]
+    a2 = alpha * alpha
+    if dist == "ggx":
+        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+    else:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            D = np.where(c2 > 0, np.exp(-((1.0 - c2) / a2) / c2 - 2.0 * np.log(c2)) / (np.pi * a2), 0.0)
+    G = 1.0 / (1.0 + _lambda(zi, alpha, dist) + _lambda(zo, alpha, dist))
+    v = D * G / (4.0 * np.maximum(zi, 1e-6) * np.maximum(zo, 1e-6)) * geom["w"]
+    D_, n_o = geom["shape"]
+    return np.maximum(np.bincount(geom["node"], v, D_ * n_o).reshape(D_, n_o), 0.0)
 
 
 def _glossy_albedo_memo(cos_o, a: float, dg: str) -> np.ndarray:
@@ -1016,6 +1053,10 @@ def _table_key(brdf) -> tuple:
         if a is not None:
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
     info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    pts = info.get("floor_points")
+    if isinstance(pts, dict):                              # the floors depend on the floor points too
+        for k in ("wi", "f", "ok", "alpha_min"):
+            h.update(np.ascontiguousarray(pts.get(k), np.float64).tobytes())
     return (h.hexdigest(), brdf.res, bool(brdf.iso), bool(getattr(brdf, "half", False)),
             float(getattr(brdf, "extent", 1.0)), int(info.get("sub", 0)))
 
@@ -1023,9 +1064,87 @@ def _table_key(brdf) -> tuple:
 def glossy_floor_alpha_min(brdf: TabulatedBRDF) -> float:
     """The smallest α of the glossy floor's search: one cell's angular size tan(π Z / (2 res)) (Z the half table's
     zoom): a lobe narrower than a cell could sit between the nodes, where the constraint r >= 0 does not see it,
-    and add energy the table does not hold."""
+    and add energy the table does not hold.  A table with floor points (``floor_points``: f sampled finer than the
+    cells where a narrow lobe sits, checked as constraints too) takes their own limit, ``alpha_min``."""
+    pts = floor_points(brdf)
+    if pts is not None:
+        return float(pts["alpha_min"])
     Z = float(getattr(brdf, "extent", 1.0)) if getattr(brdf, "half", False) else 1.0
     return float(np.tan(0.5 * np.pi * Z / brdf.res))
+
+
+def floor_points(brdf) -> dict | None:
+    """The floor points of ``brdf`` (``info["floor_points"]``), or None: extra constraints r >= 0 of the floors,
+    finer than the table's cells where a sharp lobe sits (a MERL file's own θh bins near the specular peak,
+    ``merl.floor_points``), so that a glossy floor narrower than a cell can be fitted without slipping between the
+    nodes.  A dict: ``wi`` (n_o, P, 3) unit directions for the table's view nodes (``TabulatedBRDF.view_nodes``),
+    ``f`` (n_o, P, 3) the BRDF there (1/sr), ``ok`` (n_o, P) the points that constrain (ωi above the horizon, a
+    measured bin), ``alpha_min`` the smallest floor α the points resolve."""
+    info = brdf.info if isinstance(getattr(brdf, "info", None), dict) else {}
+    pts = info.get("floor_points")
+    if pts is None:
+        return None
+    n_o = brdf.table.shape[1]
+    shape = np.shape(pts.get("wi")) if isinstance(pts, dict) else ()
+    if not (len(shape) == 3 and shape[0] == n_o and shape[2] == 3 and np.shape(pts.get("f")) == shape
+            and np.shape(pts.get("ok")) == shape[:2] and "alpha_min" in pts):
+        raise ValueError(f"info: floor_points must hold wi, f (n_o = {n_o}, P, 3), ok (n_o, P) and alpha_min")
+    return pts
+
+
+#: largest share of a view row's albedo that clamping r >= 0 in the horizon cells may add (``_bound_clamp``)
+CLAMP_MAX = 1e-3
+
+
+def _horizon_cells(brdf) -> np.ndarray:
+    """(res², n_o) bool: the half table's cells the horizon cuts (some, not all, of a cell's sub-points have ωi
+    above it).  With floor points (a MERL import) they do not constrain the glossy floor's ks: their nodes average
+    only grazing ωi, where a MERL file's 1° θd bins are coarser than the Smith shadowing's change (the table's node
+    / the true BRDF 0.5-0.9 there, GGX α 0.02 file at 48²), so they capped ks at 0.56-0.68 of the lobe's 0.94.
+    r < 0 there is clamped (``residual``) and bounded by ``_bound_clamp``."""
+    _layout_lobes(brdf)                                           # the layout's pair geometry
+    geom = _LOBES["geom"]
+    n_ok = np.bincount(geom["node"], minlength=int(np.prod(geom["shape"]))).reshape(geom["shape"])
+    return (n_ok > 0) & (n_ok < geom["sub"] ** 2)
+
+
+def _bound_clamp(brdf, t, lam, g, kd, ks, cut) -> np.ndarray:
+    """ks (n_o, 3) lowered where needed so that the energy the residual's clamp adds in the horizon cells ``cut``,
+    Σ_cut max(0, kd lam + ks g - t) w (w the cell's albedo weight ∫ 4 |ωo·h| ds dt, ``_half_cell_integrals``), stays
+    at most ``CLAMP_MAX`` of the row's Σ t w: bisection (40 steps) between the value that keeps r >= 0 in those cells
+    and ks.  Returns ks when it already does (measured: GGX α 0.02 gold file at 48², 1.2e-4 at the most grazing
+    view, 0 below 70°)."""
+    _, omc = _half_cell_integrals(brdf)
+    w = omc.T[..., None]                                          # (D, n_o, 1)
+    E_row = (t * w).sum(0)                                        # (n_o, 3)
+    c = cut.any(1)
+    tc, lc, gc, wc = t[c], lam[c][..., None], g[c][..., None], w[c]
+    mc = cut[c][..., None] & (gc > 0)
+
+    def excess(k):
+        return (np.where(mc, np.maximum(kd * lc + k[None] * gc - tc, 0.0), 0.0) * wc).sum(0) - CLAMP_MAX * E_row
+    if np.all(excess(ks) <= 0):
+        return ks
+    lo = np.maximum(np.where(mc, (tc - kd * lc) / np.where(mc, gc, 1.0), np.inf).min(0), 0.0)
+    lo = np.minimum(np.where(np.isfinite(lo), lo, ks), ks)
+    hi = ks.copy()
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        ok = excess(mid) <= 0
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    return np.where(excess(ks) <= 0, ks, lo)
+
+
+def _point_rows(brdf, pts, a: float, dg: str):
+    """Rows (P, n_o) of the floor points for ``_best_split``: (f (P, n_o, 3), 1/π, the glossy lobe g of α ``a``),
+    all three 0 where a point does not constrain.  The units are f's (1/sr), not ρ's: the split compares ratios
+    (t - kd lam) / g row by row, so rows of other units mix freely."""
+    ok = np.asarray(pts["ok"], bool)
+    wo = brdf.view_nodes()[:, None, :]
+    wi = np.asarray(pts["wi"], np.float64)
+    g = np.where(ok, glossy_eval(np.where(ok[..., None], wi, wo), np.broadcast_to(wo, wi.shape), a, dg), 0.0)
+    f = np.where(ok[..., None], np.asarray(pts["f"], np.float64), 0.0)
+    return f.transpose(1, 0, 2), np.where(ok, 1.0 / np.pi, 0.0).T, g.T
 
 
 def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: str | None = None,
@@ -1076,10 +1195,20 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
     w_o /= w_o.sum()
     memo = {}
 
+    pts = floor_points(brdf)
+    cut = _horizon_cells(brdf) if pts is not None else None
+
+    def rows(a, dg):                                      # the nodes' constraints, and the floor points' if any
+        g = lobes(a, dg)
+        if pts is None:
+            return t, lam, g
+        tp, lp, gp = _point_rows(brdf, pts, a, dg)        # horizon cells: no ks constraint (``_horizon_cells``)
+        return np.concatenate([t, tp]), np.concatenate([lam, lp]), np.concatenate([np.where(cut, 0.0, g), gp])
+
     def solve(a, dg):
         k = (float(a), dg)
         if k not in memo:
-            g = lobes(float(a), dg)
+            t, lam, g = rows(float(a), dg)
             if per_view:                                  # ks per θo node: weights cos θ sin θ of the nodes
                 Eg = _glossy_albedo_memo(np.cos(th_o), float(a), dg) * w_o
                 kd, ks = _best_split(t, lam, g, Eg)
@@ -1087,7 +1216,7 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
                 Eg = np.array([_hemi_average(_glossy_albedo_memo(mu, float(a), dg))])
                 kd, ks = _best_split(t.reshape(-1, 1, 3), lam.reshape(-1, 1), g.reshape(-1, 1), Eg)
                 ks = np.repeat(ks, n_o, 0)
-            memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, g, Eg)
+            memo[k] = (float(np.sum(kd) + np.sum(Eg[:, None] * ks[: len(Eg)])), kd, ks, lobes(float(a), dg), Eg)
         return memo[k]
     E_f = _hemi_albedo(brdf)
     dists = FLOOR_DISTS if dist is None else (dist,)
@@ -1102,24 +1231,25 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
         a0, dg = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))      # ties: GGX
         best_share = (memo[(a0, dg)][0] - np.sum(memo[(a0, dg)][1])) / 3.0 / max(E_f, 1e-30)
         if best_share >= min_share:                        # refine the best distribution's α
-            i = int(np.argmin(np.abs(grid - a0)))
-            lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n_grid - 1)])
-            gr = 0.5 * (np.sqrt(5.0) - 1.0)
-            x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-            for _ in range(8):                             # golden section in log α (unimodal near the best)
-                if solve(np.exp(x1), dg)[0] >= solve(np.exp(x2), dg)[0]:
-                    hi, x2 = x2, x1
-                    x1 = hi - gr * (hi - lo)
-                else:
-                    lo, x1 = x1, x2
-                    x2 = lo + gr * (hi - lo)
+            # with floor points, also the other distribution's own best when its grid value is at least half the
+            # best: a GGX floor under a sharp GGX file peaks within a few % of the file's α (GGX α 0.02 gold: floor
+            # share 0.96 there, 0.83 at α 0.018), so the grid can rank a flatter Beckmann floor first
+            best = memo[(a0, dg)][0]
+            for d in dists if pts is not None else (dg,):
+                k0 = max((k for k in memo if k[1] == d), key=lambda k: memo[k][0])
+                if d == dg or memo[k0][0] >= 0.5 * best:
+                    _golden(lambda x: solve(np.exp(x), d)[0], grid, k0[0], 8 if pts is None else 12)
     a_best, d_best = max(memo, key=lambda k: memo[k][0] - 1e-9 * (k[1] != "ggx"))    # ties: GGX
     total, kd, ks, g, Eg = memo[(a_best, d_best)]
     if kd.max() <= 1e-6:
         kd = np.zeros(3)
+    if cut is not None and ks.any():                       # the horizon cells' clamp: at most CLAMP_MAX
+        ks = _bound_clamp(brdf, t, lam, g, kd, ks, cut)
+        if not per_view:
+            ks = np.broadcast_to(ks.min(0), ks.shape).copy()
     if ks.max() <= 1e-6:
         ks = np.zeros_like(ks)
-    r = t - kd * lam[..., None] - ks[None, :, :] * g[..., None]       # >= 0 up to rounding
+    r = t - kd * lam[..., None] - ks[None, :, :] * g[..., None]       # >= 0 up to rounding (horizon cells: clamped)
     share = float(np.sum(Eg[:, None] * ks[: len(Eg)]) / 3.0 / E_f) if E_f > 0 and ks.any() else 0.0
     ks_view = ks if per_view and ks.any() else None
     out = FloorParts(kd, ks.max(0), float(a_best) if ks.any() else 0.0, residual(r), "glossy", share,
@@ -1128,6 +1258,23 @@ def glossy_floor_split(brdf: TabulatedBRDF, alpha: float | None = None, dist: st
         _FLOOR_CACHE.clear()
     _FLOOR_CACHE[key] = out
     return out
+
+
+def _golden(value, grid, a0, steps: int = 8) -> None:
+    """Golden-section search for the maximum of ``value(log α)`` between the neighbours of ``a0`` in ``grid`` (unimodal
+    near the best grid value); ``value`` remembers what it evaluates (the caller keeps the best)."""
+    n = len(grid)
+    i = int(np.argmin(np.abs(grid - a0)))
+    lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n - 1)])
+    gr = 0.5 * (np.sqrt(5.0) - 1.0)
+    x1, x2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
+    for _ in range(steps):
+        if value(x1) >= value(x2):
+            hi, x2 = x2, x1
+            x1 = hi - gr * (hi - lo)
+        else:
+            lo, x1 = x1, x2
+            x2 = lo + gr * (hi - lo)
 
 
 def floor_ks(parts, wo) -> np.ndarray:

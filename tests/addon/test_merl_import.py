@@ -112,7 +112,8 @@ def test_reported_albedo_is_the_files_and_the_tables(addon, scene, files):
 
 def test_import_resolution_follows_the_file_and_keeps_explicit_sizes(addon, scene, files):
     """The default import ("auto") picks the grid from the file's peak (``merl.auto_resolution``): the sharp file
-    through the operator's defaults gets the cap (48², flagged and reported as sharper than the cells), the broad
+    through the operator's defaults gets the cap (48², flagged and reported as sharper than the cells, its peak
+    rendered by the glossy floor: GGX α 0.04, ``merl.floor_points``), the broad
     GGX α 0.2 file through the API the floor (24²); an explicit size stays what it was (API ``res=16``; the
     operator's ``res=16`` from a script turns Automatic Resolution off, as the old operator honoured it); bad sizes
     are ValueErrors naming ``res``.  On the old code the defaults gave 32² for both files."""
@@ -139,3 +140,4 @@ def test_import_resolution_follows_the_file_and_keeps_explicit_sizes(addon, scen
     assert (mat["tabulated_res"], mat["merl_res_auto"], mat["merl_sharper_than_table"]) == (merl.AUTO_RES_MAX, True, True)
     summary = ops.import_summary(mat)
     assert "48² directions (auto: peak half width 1.5°" in summary and "sharper than the cells" in summary, summary
+    assert "rendered by the glossy floor (GGX α 0.04)" in summary, summary     # Session 10: floor points

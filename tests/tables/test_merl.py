@@ -74,10 +74,10 @@ def test_closure_table_albedo_matches_analytic(merl_file):
 
 def test_sharp_lobe_keeps_its_energy_at_every_view():
     """A sharp GGX (α = 0.04) written as a MERL file: what the closure renders (the sampler's mean weight x
-    lobe albedo, 40k samples, standard error < 0.3 %) stays within 3 % of the analytic albedo at θo = 0..75°
-    (measured -1.7..-2.2 % on 32² x 32; the error is a view-independent loss, MERL's nearest-bin lookup).  The
-    ωi layout (``half=False``) with the Diffuse floor alone fails the same check (+2.4..-4.3 %: it gains or loses
-    energy with the view; its glossy floor, α 0.049, renders most of the lobe exactly: +1.3..-2.9 %)."""
+    lobe albedo, 40k samples, standard error < 0.3 %) stays within 1 % of the analytic albedo at θo = 0..75°
+    (measured +0.05..+0.21 % on 32² x 32; the nearest-bin resampling of Session 9, ``linear=False``: -1.8..-2.1 %,
+    a view-independent loss, fails this).  The ωi layout (``half=False``) with the Diffuse floor alone gains or
+    loses energy with the view (+2.2..-2.1 %; nearest bin +2.5..-4.1 %)."""
     def f(wi, wo):
         return 0.8 * tb._ggx_unit(wi, wo, 0.04)[:, None] * np.ones(3) + 0.02 / np.pi
     table = np.maximum(merl.tabulate(f), 0.0)
@@ -97,9 +97,10 @@ def test_sharp_lobe_keeps_its_energy_at_every_view():
         return np.array(out) / ref - 1.0
 
     err = rendered(merl.to_tabulated(table, 32, 32))
-    assert np.all(np.abs(err) < 0.03), err
+    assert np.all(np.abs(err) < 0.01), err
     assert err.max() - err.min() < 0.01, err                   # the same at every view
-    assert np.any(np.abs(rendered(merl.to_tabulated(table, 32, 32, half=False), "diffuse")) > 0.03)
+    err = rendered(merl.to_tabulated(table, 32, 32, half=False), "diffuse")
+    assert err.max() - err.min() > 0.03, err
 
 
 def test_bad_files(tmp_path):

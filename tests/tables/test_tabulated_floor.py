@@ -109,7 +109,8 @@ def test_merl_files_floor_share():
     residual < 1e-9 of it); a file written from GGX (α 0.2, x 0.8) + Lambert (0.1, 0.2, 0.3) by ``tabulate``
     (25 % of the bins 'missing', as in measured files) keeps kd = 0.15, 0.25, 0.35 (18-19 % of the albedo at
     θo = 0..80°) because ``fill_missing`` gives missing bins their measured neighbour's value; read as 0
-    (``fill=False``) they pin kd to 0."""
+    (``fill=False``) they pin kd to 0 with the nearest-bin resampling (``linear=False``) and halve it with the
+    interpolated one (0.06, 0.08, 0.09: the nodes by the horizon blend the 0s in)."""
     lam = merl.to_tabulated(np.full((*merl.SHAPE, 3), 0.5 / np.pi), 16, 8)
     kd, R = tb.floor_split(lam)
     np.testing.assert_allclose(kd, 0.5, rtol=1e-9)
@@ -122,8 +123,10 @@ def test_merl_files_floor_share():
     wo = np.stack([np.sin(th), 0 * th, np.cos(th)], -1)
     share = kd[0] / (kd[0] + R.albedo(wo, 32, 64)[:, 0])
     assert np.all((share > 0.15) & (share < 0.22)), share
-    kd0, _ = tb.floor_split(merl.to_tabulated(table, 16, 8, fill=False))
+    kd0, _ = tb.floor_split(merl.to_tabulated(table, 16, 8, fill=False, linear=False))
     assert kd0.max() < 0.01
+    kd0, _ = tb.floor_split(merl.to_tabulated(table, 16, 8, fill=False))
+    assert np.all(kd0 < 0.6 * kd), kd0
 
 
 # ----------------------------------------------------------------------------- the glossy floor
