@@ -199,7 +199,7 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto"
     t0 = time.perf_counter()
     table = btable.tabulate_tile(bt, mats, view=view)   # the closure's finer table (direct, eq. 8)
     t_tab = time.perf_counter() - t0
-    vg = {"view_a": table.view_a, "view_b": table.view_b, "view_shift": table.view_shift} if table.view_a is not None else {}
+    vg = {"view_a": table.view_a, "view_b": table.view_b, "view_shift": table.view_shift, "view_anchor": table.view_anchor} if table.view_a is not None else {}
     if not indirect and not fit:
         return {"table": (table, brdf)}, {"effective (dir_res %d)" % dir_res: t_eff, "table": t_tab}, None
     ind, info = interreflect.tile_indirect(bt, mats, True, view=table.view_nodes() if vg else None)

@@ -124,7 +124,8 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
         t0 = time.perf_counter()
         table = tabulate_tile(tile, materials, view="auto")     # the tile's visibility events on view nodes
         t_table = time.perf_counter() - t0
-    vg = {"view_a": table.view_a, "view_b": table.view_b, "view_shift": table.view_shift} \
+    vg = {"view_a": table.view_a, "view_b": table.view_b, "view_shift": table.view_shift,
+          "view_anchor": table.view_anchor} \
         if table is not None and table.view_a is not None else {}
     # the inter-reflected light is smooth in the view: traced on a coarser grid of the same layout (the tile's
     # events on nodes) and interpolated to the table's view nodes (the pass runs per view node: an edit's cost)

@@ -30,6 +30,9 @@ path (``scratch_addon.tabulated_material``).  Explicit-geometry renders (SVM, 25
 groove 80/180 5.5 -> 2.8 %, pyramid 80/0 3.4 -> 1.9 % (seed 0).  Between the view nodes the closure follows the lobe
 (``tabulate_tile(view_shift=True)``, ``TabulatedBRDF.view_shift``): off the axes the highlight moves with the view and
 blending the bracketing rows left the groove at 78/200 3.8 / 3.0 % dark (seeds 0 / 1); with the shift 2.0 / 1.2 %.
+The shift's anchor leans to each row's peak (``tabulated_brdf.view_centroids``, centroid of g², session 10): a metal
+floor's highlight under broad dielectric walls (Principled pyramid, 55/300) was moved by the walls' mass centroid,
+lamp term +4.9 % over eq. 8, now +1.8 % (a node at the view +1.2 %).
 """
 from __future__ import annotations
 
@@ -44,7 +47,7 @@ from .geometry import face_geometry, is_closed_surface
 from .visibility import visibility_matrix
 
 __all__ = ["to_tabulated", "tabulate_tile", "closure_res", "table_dir_res", "sharpest_alpha", "MIN_DIR_RES",
-           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
+           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "VIEW_ANCHOR", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
            "mirror_symmetric", "EVENT_FACETS"]
 
 #: Resolution of tiles with only rough / diffuse materials (the reference mode's default).
@@ -70,6 +73,11 @@ VIEW_NODES = 31
 #: Node density of the view grid (``view_grid_nodes(grazing=...)``): 2.5 x denser beyond |a| = 65° (nodes
 #: ~3° apart over 65-85°, ~8° below): the bright grazing side of a glossy wall moves fast with the view.
 VIEW_GRAZING = (math.radians(65.0), 2.5)
+#: Anchor power of the lobe-following view interpolation (``TabulatedBRDF.view_anchor``: the centroid of g^p of each
+#: view node's row, ``tabulated_brdf.view_centroids``).  A tile's rows mix highlights that move with the view (a metal
+#: floor's, a wall's) with broad parts that stay put; p = 2 leans to the highlight (Principled pyramid 55/300, lamp
+#: term vs eq. 8: +4.9 % with the mass centroid, +1.8 %; p = 4 +1.1 % but the audit's bump +3.4 -> +4.7 %).
+VIEW_ANCHOR = 2.0
 #: Facets per block of the visibility products (memory: _CHUNK x res² floats).
 _CHUNK = 32768
 #: Most distinct facet normals summed exactly; beyond it the normals are splatted onto the bake's grid.
@@ -291,7 +299,8 @@ def _normal_groups(tile):
     return normal_grid(res_n), idx, wt
 
 
-def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift: bool = True) -> TabulatedBRDF:
+def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift: bool = True,
+                  view_anchor: float = VIEW_ANCHOR) -> TabulatedBRDF:
     """The tile's effective BRDF (Wu et al. 2011, eq. 8 / eq. 7) tabulated for the closure at ``res``
     (default ``closure_res(dir_res)``) directly from its facets: for every pair of fine grid
     directions (ωi, ωo),
@@ -306,7 +315,8 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift
     (None), on a view grid (view_a, view_b) of projected view angles, or "auto" (``tile_view_grid``: the
     tile's visibility events on nodes; ``tabulated_brdf`` docstring).  ``view_shift`` (view grids; default True): the
     closure interpolates between view nodes by following the lobe (``TabulatedBRDF.view_shift``: each node's row moved
-    by the interpolated centroid minus its own), not by blending rows whose highlights sit apart.  Cost: one visibility pass over
+    by the interpolated centroid minus its own), not by blending rows whose highlights sit apart; ``view_anchor``: the power p
+    of that centroid (of g^p, ``VIEW_ANCHOR``).  Cost: one visibility pass over
     res² directions plus, per (material, colour, normal) group, a (res² x S_g) @ (S_g x res²) product
     and one BRDF evaluation on res⁴ pairs.  Returns an anisotropic ``TabulatedBRDF``."""
     if res is None:     # hemi-octahedral ωo (view None): at most what OSL compiles (its graph atlas is n_o (res + 2) tall)
@@ -370,5 +380,6 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift
         if not isinstance(view_shift, (bool, np.bool_)):
             raise ValueError(f"view_shift: must be True or False, got {view_shift!r}")
         vg["view_shift"] = bool(view_shift)
+        vg["view_anchor"] = float(view_anchor)
     return TabulatedBRDF(T, res, False, {"source": "biscale", "tabulated_from": "facets", "dir_res": res,
                                          "n_facets": int(len(tile.pos)), "view_grid": int(bool(vg))}, **vg)
