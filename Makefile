@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(VPY) scratch_addon/cli.py --preset demo --layout highlights --out docs/img/demo.png --samples 96 --res 640 480
 
 test: $(STAMP)
-	$(VPY) -m pytest -q -p no:cacheprovider --durations=15 tests
+	$(VPY) -m pytest -q -p no:cacheprovider -n 2 --dist loadfile --durations=15 tests
 
 bench: $(STAMP)
 	$(VPY) -m bench --list
