@@ -190,7 +190,6 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto"
     from scratch_materials.precompute.biscale import table as btable
     from scratch_materials.precompute.biscale.effective import BiscaleTile, EffectiveBRDF
     from scratch_materials.precompute.biscale.fit import fit_closures
-    from scratch_materials.precompute.tables.tabulated_brdf import TabulatedBRDF
 
     t0 = time.perf_counter()
     bt = BiscaleTile(tile.vertices, tile.faces, tile.face_material, n_facets=n_facets, dir_res=dir_res, seed=seed)
@@ -205,7 +204,7 @@ def bake_variants(tile, mats, n_facets=10000, dir_res=10, fit=False, view="auto"
     ind, info = interreflect.tile_indirect(bt, mats, True, view=table.view_nodes() if vg else None)
     r = info["res"]
     add = interreflect.resample_wi(ind, r, table.res) if vg else interreflect.resample(ind, r, table.res)
-    table_gi = TabulatedBRDF(table.table + add, table.res, False, table.info, **vg)
+    table_gi = btable.with_indirect(table, add)
     add = interreflect.resample_views(ind, r, vg["view_a"], vg["view_b"], brdf.dir_res) if vg else \
         interreflect.resample(ind, r, brdf.dir_res)
     brdf_gi = EffectiveBRDF(brdf.table + add, brdf.dir_res, brdf.info)

@@ -22,7 +22,7 @@ from .effective import BiscaleTile, check_options
 from .fit import fit_closures
 from ..tables.tabulated_brdf import view_directions
 from .interreflect import check_mode, resample, resample_view_nodes, resample_views, resample_wi, tile_indirect
-from .table import tabulate_tile, tile_view_grid
+from .table import tabulate_tile, tile_view_grid, with_indirect
 
 #: mesh content hash + options -> BiscaleTile (visibility, N cached inside)
 _TILE_CACHE: dict = {}
@@ -139,8 +139,7 @@ def bake_tables(V, F, M, P, materials, n_lobes: int = 4, exr_dir: str | None = N
         brdf = type(brdf)(brdf.table + ind_brdf, brdf.dir_res, {**brdf.info, "interreflections": 1})
         if table is not None:
             ind_table = resample_wi(ind, r, table.res) if vg else resample(ind, r, table.res)
-            table = type(table)(table.table + ind_table, table.res, table.iso, {**table.info, "interreflections": 1},
-                                **vg)
+            table = with_indirect(table, ind_table)
     step(0.7)
     fit = fit_closures(brdf, n_lobes=n_lobes)
     step(0.9)

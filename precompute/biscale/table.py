@@ -47,7 +47,7 @@ from .geometry import face_geometry, is_closed_surface
 from .visibility import visibility_matrix
 
 __all__ = ["to_tabulated", "tabulate_tile", "closure_res", "table_dir_res", "sharpest_alpha", "MIN_DIR_RES",
-           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "VIEW_ANCHOR", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
+           "MAX_DIR_RES", "CLOSURE_RES", "MAX_CLOSURE_RES", "VIEW_NODES", "VIEW_GRAZING", "VIEW_ANCHOR", "VIEW_ANCHOR_GI", "with_indirect", "view_events", "tile_view_grid", "EVENT_STEP_DEG", "MAX_EVENTS",
            "mirror_symmetric", "EVENT_FACETS"]
 
 #: Resolution of tiles with only rough / diffuse materials (the reference mode's default).
@@ -78,6 +78,11 @@ VIEW_GRAZING = (math.radians(65.0), 2.5)
 #: floor's, a wall's) with broad parts that stay put; p = 2 leans to the highlight (Principled pyramid 55/300, lamp
 #: term vs eq. 8: +4.9 % with the mass centroid, +1.8 %; p = 4 +1.1 % but the audit's bump +3.4 -> +4.7 %).
 VIEW_ANCHOR = 2.0
+#: Anchor power of a table that also holds the inter-reflected light (``bake.bake_tables``): the mass centroid.  With
+#: p = 2 the anchor of a row whose direct highlight and inter-reflected peak are of similar height jumps between
+#: them from one view node to the next: the groove (diffuse + glossy) table + inter-reflections rendered 13.0 % off
+#: the explicit tiles' full GI at θo 35° (p = 1: 2.5 %; SVM 128 spp, tests/biscale/test_biscale_truth_gi).
+VIEW_ANCHOR_GI = 1.0
 #: Facets per block of the visibility products (memory: _CHUNK x res² floats).
 _CHUNK = 32768
 #: Most distinct facet normals summed exactly; beyond it the normals are splatted onto the bake's grid.
@@ -383,3 +388,12 @@ def tabulate_tile(tile, materials, res: int | None = None, view=None, view_shift
         vg["view_anchor"] = float(view_anchor)
     return TabulatedBRDF(T, res, False, {"source": "biscale", "tabulated_from": "facets", "dir_res": res,
                                          "n_facets": int(len(tile.pos)), "view_grid": int(bool(vg))}, **vg)
+
+
+def with_indirect(table: TabulatedBRDF, indirect: np.ndarray) -> TabulatedBRDF:
+    """``table`` plus the inter-reflected part ``indirect`` (same layout: (res², n_o, 3), ``interreflect.resample_wi``
+    / ``resample``), marked ``interreflections``; a view grid keeps its nodes and shift, anchored by
+    ``VIEW_ANCHOR_GI`` (the mass centroid: see there)."""
+    vg = {} if table.view_a is None else {"view_a": table.view_a, "view_b": table.view_b,
+                                          "view_shift": table.view_shift, "view_anchor": VIEW_ANCHOR_GI}
+    return type(table)(table.table + indirect, table.res, table.iso, {**table.info, "interreflections": 1}, **vg)
