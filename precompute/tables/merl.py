@@ -284,8 +284,8 @@ POINT_BINS_PER_WIDTH = 3
 def floor_points(table, brdf: TabulatedBRDF, measured=None, read=None) -> dict:
     """Constraint points of the glossy floor (``tabulated_brdf.floor_points``) from the file's own bins: for each view
     node of ``brdf`` (isotropic, half layout), half vectors at MERL's θh bin centres within ``POINT_CELLS`` cells of
-    the normal x ``POINT_PHI`` azimuths, ωi = reflect(ωo, h), f the nearest-bin ``lookup`` of ``table`` (whose θh
-    then is the bin's own: no quantisation along the peak).  MERL's θh bins are ~0.01-0.1° wide there (index
+    the normal x ``POINT_PHI`` azimuths, ωi = reflect(ωo, h), f read from ``table`` by ``read`` (default
+    ``interpolate``; ``to_tabulated`` passes its own reader) at the bin's own θh: no quantisation along the peak.  MERL's θh bins are ~0.01-0.1° wide there (index
     √(θh/90°) 90), far finer than the table's cells (π/(2 res): 1.9° at 48²), so a floor as sharp as the file's
     peak keeps r >= 0 where the table cannot see it.  ``ok``: ωi above the horizon and the bin measured
     (``measured`` (90, 90, 180) bool, default all); ``alpha_min``: the GGX α whose half width spans

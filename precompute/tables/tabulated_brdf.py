@@ -842,13 +842,24 @@ def glossy_eval(wi, wo, alpha, dist: str = "ggx") -> np.ndarray:
     the Glossy node's GGX / OSL ``microfacet("ggx")``; "beckmann"), F = 1, height-correlated Smith G2, single
     scattering: D G2 / (4 cos θi cos θo) (``precompute.cycles.ggx.bsdf_eval`` / cos θi) for ωi, ωo above the horizon
     (callers mask the rest: Cycles evaluates 0 there)."""
-    if dist == "ggx":
-        return _ggx_unit(wi, wo, alpha)
     h = wi + wo
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-    D = _bk.beckmann_aniso_D(alpha, alpha, h)
-    G = 1.0 / (1.0 + _lambda(wi[..., 2], alpha, dist) + _lambda(wo[..., 2], alpha, dist))
-    return D * G / (4.0 * np.maximum(wi[..., 2], 1e-6) * np.maximum(wo[..., 2], 1e-6))
+    return _glossy_cosines(h[..., 2] ** 2, wi[..., 2], wo[..., 2], alpha, dist)
+
+
+def _glossy_cosines(c2, zi, zo, alpha, dist: str = "ggx") -> np.ndarray:
+    """``glossy_eval`` from the cosines it depends on: c2 = cos² θh, zi = cos θi, zo = cos θo (isotropic: D of θh
+    alone, GGX or Cycles' Beckmann ``beckmann_aniso_D``), D G2 / (4 cos θi cos θo) in 1/sr; shared by the floor
+    search's cached pair geometry (``_geometry_nodes``)."""
+    a2 = alpha * alpha
+    if dist == "ggx":
+        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
+    else:
+        c2 = np.asarray(c2, np.float64)
+        D = _bk.beckmann_aniso_D(alpha, alpha, np.stack([np.sqrt(np.maximum(1.0 - c2, 0.0)), np.zeros_like(c2),
+                                                         np.sqrt(c2)], -1))
+    G = 1.0 / (1.0 + _lambda(zi, alpha, dist) + _lambda(zo, alpha, dist))
+    return D * G / (4.0 * np.maximum(zi, 1e-6) * np.maximum(zo, 1e-6))
 
 
 def glossy_albedo(cos_o, alpha, dist: str = "ggx", n: int = 768) -> np.ndarray:
@@ -1050,18 +1061,10 @@ def _node_geometry(pairs) -> dict:
 
 
 def _geometry_nodes(geom: dict, alpha: float, dist: str) -> np.ndarray:
-    """``glossy_nodes`` from the cached pair geometry (``_node_geometry``): the same D G2 / (4 cos θi cos θo) as
-    ``glossy_eval`` (GGX: ``_ggx_unit``; Beckmann: ``beckmann.beckmann_aniso_D`` with hx² + hy² = 1 - hz²), without
-    re-deriving the half vectors per α (the floor search evaluates ~30 α on 10⁶ pairs)."""
-    c2, zi, zo = geom["c2"], geom["zi"], geom["zo"]
-    a2 = alpha * alpha
-    if dist == "ggx":
-        D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
-    else:
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            D = np.where(c2 > 0, np.exp(-((1.0 - c2) / a2) / c2 - 2.0 * np.log(c2)) / (np.pi * a2), 0.0)
-    G = 1.0 / (1.0 + _lambda(zi, alpha, dist) + _lambda(zo, alpha, dist))
-    v = D * G / (4.0 * np.maximum(zi, 1e-6) * np.maximum(zo, 1e-6)) * geom["w"]
+    """``glossy_nodes`` from the cached pair geometry (``_node_geometry``): ``glossy_eval``'s lobe from the cosines
+    (``_glossy_cosines``), without re-deriving the half vectors per α (the floor search evaluates ~30 α on 10⁶
+    pairs)."""
+    v = _glossy_cosines(geom["c2"], geom["zi"], geom["zo"], alpha, dist) * geom["w"]
     D_, n_o = geom["shape"]
     return np.maximum(np.bincount(geom["node"], v, D_ * n_o).reshape(D_, n_o), 0.0)
 
@@ -1568,17 +1571,7 @@ def pdf(tb: ClosureTables, wi, wo) -> np.ndarray:
 # ----------------------------------------------------------------------------- the SVM / EEVEE twin
 def _ggx_unit(wi, wo, alpha):
     """Cycles' GGX reflection (F = 1, height-correlated Smith G), standard BRDF in 1/sr."""
-    h = wi + wo
-    h /= np.linalg.norm(h, axis=-1, keepdims=True)
-    c2 = h[..., 2] ** 2
-    a2 = alpha * alpha
-    D = a2 / (np.pi * (c2 * (a2 - 1.0) + 1.0) ** 2)
-
-    def lam(z):
-        z2 = np.clip(z * z, 1e-12, 1.0)
-        return 0.5 * (np.sqrt(1.0 + a2 * (1.0 - z2) / z2) - 1.0)
-    G = 1.0 / (1.0 + lam(wi[..., 2]) + lam(wo[..., 2]))
-    return D * G / (4.0 * np.maximum(wi[..., 2], 1e-6) * np.maximum(wo[..., 2], 1e-6))
+    return glossy_eval(wi, wo, alpha, "ggx")
 
 
 def glossy_twin(brdf: TabulatedBRDF) -> dict:
